@@ -1,0 +1,37 @@
+# Set-up is automatic: every target below creates .venv and installs the project first.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+
+.PHONY: demo test test-slow test-all bench reproduce clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	# torch is pinned to the small CPU build (pyproject.toml says why)
+	$(BIN)/python -m pip install --quiet torch==2.13.0
+	$(BIN)/python -m pip install --quiet -e '.[dev,render]'
+	touch $(STAMP)
+
+## main job: the nominal linear critical speed
+demo: $(STAMP)
+	$(BIN)/bogie critical-speed
+
+## quick test suite (slow tests skipped)
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+## only the tests marked slow
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -q -m slow
+
+## everything
+test-all: $(STAMP)
+	$(BIN)/python -m pytest -q -m "slow or not slow"
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/bench_dynamics.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

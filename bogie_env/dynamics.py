@@ -1,0 +1,390 @@
+"""The 20-state right-hand side of the 10-DOF bogie, batched and compiled.
+
+State order (the paper's, Section 4)::
+
+    y1, dy1, z1, dz1, psi1, dpsi1, phi1, dphi1,     front wheelset (i = 1, at x = +L1)
+    y2, dy2, z2, dz2, psi2, dpsi2, phi2, dphi2,     rear wheelset  (i = 2, at x = -L1)
+    yb, dyb, psib, dpsib                            bogie frame
+
+Axes: x forward, y left, z up; yaw positive nose-left, roll positive right side down
+(left side up). SI units throughout; speed ``V`` in m/s.
+
+The right-hand side is assembled from the force and moment balances Eqs. (1)-(6) with the
+creep forces Eqs. (16)-(25), saturation Eqs. (26)-(30), contact positions Eqs. (31)-(36),
+normal forces Eqs. (37)-(39), suspension Eqs. (40)-(45) and flange contact Eq. (46). The
+printed equations' typos are corrected as listed in ``docs/model.md``; the condensed
+Eqs. (47)-(52) are re-derived there and checked against this code in
+``tests/test_dynamics.py``.
+
+Two inputs extend the paper's model without changing it when zero:
+
+- ``inputs`` (N, 4): generalised forces on frame lateral (N), frame yaw (N m) and the yaw
+  of wheelsets 1 and 2 (N m). Actuators act on the physics only through this term; an
+  actuator between a wheelset and the frame puts its reaction into the frame yaw entry.
+- ``track`` (N, 2): lateral track (alignment) displacement under each wheelset (m). The
+  rolling radii, gravitational terms and flange contact use the wheelset displacement
+  relative to the track; creepages use absolute velocities, which is exact for a rail at
+  rest (the slip velocity does not depend on where the rail is).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .contact import CreepCoefficients, _flange, _saturation, creep_coefficients
+from .params import BogieParams
+
+N_STATES = 20
+N_INPUTS = 4
+N_TRACK = 2
+
+STATE_NAMES: tuple[str, ...] = (
+    "y1", "dy1", "z1", "dz1", "psi1", "dpsi1", "phi1", "dphi1",
+    "y2", "dy2", "z2", "dz2", "psi2", "dpsi2", "phi2", "dphi2",
+    "yb", "dyb", "psib", "dpsib",
+)  # fmt: skip
+STATE_UNITS: tuple[str, ...] = (
+    "m", "m/s", "m", "m/s", "rad", "rad/s", "rad", "rad/s",
+    "m", "m/s", "m", "m/s", "rad", "rad/s", "rad", "rad/s",
+    "m", "m/s", "rad", "rad/s",
+)  # fmt: skip
+INPUT_NAMES: tuple[str, ...] = ("frame_lateral_force", "frame_yaw_torque", "wheelset1_yaw_torque", "wheelset2_yaw_torque")
+#: Indices of the states that change sign under the mirror y -> -y (all but z, dz).
+ANTISYMMETRIC_STATES = tuple(i for i, name in enumerate(STATE_NAMES) if not name.lstrip("d").startswith("z"))
+#: States of the vertical DOFs; they do not feed back into the others (docs/model.md).
+VERTICAL_STATES = (2, 3, 10, 11)
+LATERAL_STATES = tuple(i for i in range(N_STATES) if i not in VERTICAL_STATES)
+
+#: Speeds the model accepts, m/s. Creepages divide by V; above 250 m/s (900 km/h) the
+#: model is far outside anything it was built for.
+MIN_SPEED = 1.0
+MAX_SPEED = 250.0
+
+
+def state_index(name: str) -> int:
+    """Index of a state by name (``"y1"``, ``"dpsib"``, ...)."""
+    try:
+        return STATE_NAMES.index(name)
+    except ValueError:
+        raise KeyError(f"unknown state {name!r}; states: {', '.join(STATE_NAMES)}") from None
+
+
+# ---- coefficient vector: the compiled kernels read parameters from one float64 array ----
+COEFFICIENT_NAMES: tuple[str, ...] = (
+    "mb", "Ibz", "mw", "Iwx", "Iwy", "Iwz", "L1", "L2", "b1", "b2", "b3", "h1", "h2",
+    "e", "r0", "lam", "Wpa", "Kpx", "Kpy", "Kpz", "Cpx", "Cpy", "Cpz",
+    "Ksx", "Ksy", "Csx", "Csy", "Kr", "delta", "mu", "f11", "f12", "f22", "f33",
+)  # fmt: skip
+(
+    P_MB, P_IBZ, P_MW, P_IWX, P_IWY, P_IWZ, P_L1, P_L2, P_B1, P_B2, P_B3, P_H1, P_H2,
+    P_E, P_R0, P_LAM, P_WPA, P_KPX, P_KPY, P_KPZ, P_CPX, P_CPY, P_CPZ,
+    P_KSX, P_KSY, P_CSX, P_CSY, P_KR, P_DELTA, P_MU, P_F11, P_F12, P_F22, P_F33,
+) = range(len(COEFFICIENT_NAMES))  # fmt: skip
+N_COEFFICIENTS = len(COEFFICIENT_NAMES)
+
+
+def coefficient_vector(params: BogieParams, creep: CreepCoefficients | None = None) -> np.ndarray:
+    """The float64 vector the kernels read: the parameters plus the creep coefficients."""
+    creep = creep if creep is not None else creep_coefficients(params)
+    values = params.to_dict()
+    values.update(f11=creep.f11, f12=creep.f12, f22=creep.f22, f33=creep.f33)
+    return np.array([values[name] for name in COEFFICIENT_NAMES], dtype=np.float64)
+
+
+# ---------------------------------------------------------------------------------
+# The right-hand side of one bogie. Generic in the scalar type (float or complex) so the
+# complex-step Jacobian runs the very same code; branches compare real parts.
+# ---------------------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def _rhs_row(x, V, Q, yt, p, out):
+    mw = p[P_MW]
+    e = p[P_E]
+    r0 = p[P_R0]
+    lam = p[P_LAM]
+    W = p[P_WPA]
+    L1 = p[P_L1]
+    L2 = p[P_L2]
+    b1sq = p[P_B1] * p[P_B1]
+    f11 = p[P_F11]
+    f12 = p[P_F12]
+    f22 = p[P_F22]
+    f33 = p[P_F33]
+    Kpy2 = 2.0 * p[P_KPY]
+    Cpy2 = 2.0 * p[P_CPY]
+    yaw_k = 2.0 * p[P_KPX] * b1sq
+    yaw_c = 2.0 * p[P_CPX] * b1sq
+    roll_k = 2.0 * p[P_KPZ] * b1sq
+    roll_c = 2.0 * p[P_CPZ] * b1sq
+    half_w = 0.5 * W
+    inv_mu_n = 1.0 / (p[P_MU] * half_w)  # Eq. (28), N = Wpa/2 per wheel (Eq. 37)
+    inv_v = 1.0 / V
+    spin_rate = V / r0  # wheelset spin, rad/s
+    gyro = p[P_IWY] * spin_rate
+    yb = x[16]
+    dyb = x[17]
+    psib = x[18]
+    dpsib = x[19]
+    frame_force = 0.0 * yb
+    frame_moment = 0.0 * yb
+    for i in range(2):
+        o = 8 * i
+        y = x[o]
+        dy = x[o + 1]
+        z = x[o + 2]
+        dz = x[o + 3]
+        psi = x[o + 4]
+        dpsi = x[o + 5]
+        phi = x[o + 6]
+        dphi = x[o + 7]
+        side = 1.0 - 2.0 * i  # +1 front (x = +L1), -1 rear
+        y_rel = y - yt[i]
+        # Eq. (15): conical wheels, contact angle lam, rolling radii.
+        r_left = r0 + lam * y_rel
+        r_right = r0 - lam * y_rel
+        # Creepages (after Eq. 30).
+        xi_x_left = -lam * y_rel / r0 - e * dpsi * inv_v
+        xi_x_right = lam * y_rel / r0 + e * dpsi * inv_v
+        xi_y_left = (dy + r_left * dphi) * inv_v - psi
+        xi_y_right = (dy + r_right * dphi) * inv_v - psi
+        xi_sp_left = dpsi * inv_v - lam / r0
+        xi_sp_right = dpsi * inv_v + lam / r0
+        # Kalker linear creep in the contact frame (Eqs. 29-30 and the spin moment).
+        fx_left = -f33 * xi_x_left
+        fy_left = -f11 * xi_y_left - f12 * xi_sp_left
+        mz_left = f12 * xi_y_left - f22 * xi_sp_left
+        fx_right = -f33 * xi_x_right
+        fy_right = -f11 * xi_y_right - f12 * xi_sp_right
+        mz_right = f12 * xi_y_right - f22 * xi_sp_right
+        # Saturation, one factor per wheelset (Eqs. 26-28).
+        beta_left = np.sqrt(fx_left * fx_left + fy_left * fy_left) * inv_mu_n
+        beta_right = np.sqrt(fx_right * fx_right + fy_right * fy_right) * inv_mu_n
+        alpha = _saturation(0.5 * (beta_left + beta_right))
+        fx_left = alpha * fx_left
+        fy_left = alpha * fy_left
+        mz_left = alpha * mz_left
+        fx_right = alpha * fx_right
+        fy_right = alpha * fy_right
+        mz_right = alpha * mz_right
+        # Creep forces and moments in track axes (Eqs. 16-25).
+        incl_left = lam + phi  # contact-plane inclination, left
+        incl_right = lam - phi
+        Fx_l = fx_left - fy_left * psi
+        Fy_l = fx_left * psi + fy_left
+        Fz_l = fy_left * incl_left
+        Mx_l = mz_left * incl_left * psi
+        Fx_r = fx_right - fy_right * psi
+        Fy_r = fx_right * psi + fy_right
+        Fz_r = -fy_right * incl_right
+        Mx_r = -mz_right * incl_right * psi
+        # Normal forces (Eqs. 37-39).
+        Ny_l = -half_w * incl_left
+        Ny_r = half_w * incl_right
+        # Contact-point positions (Eqs. 31-36).
+        Rx_l = -e * psi
+        Ry_l = e + r_left * phi
+        Rz_l = e * phi - r_left
+        Rx_r = e * psi
+        Ry_r = -e + r_right * phi
+        Rz_r = -e * phi - r_right
+        # Suspension (Eqs. 40-43, corrected).
+        spring_y = Kpy2 * (y - yb - side * L1 * psib)
+        damper_y = Cpy2 * (dy - dyb - side * L2 * dpsib)
+        yaw_moment = yaw_k * (psi - psib) + yaw_c * (dpsi - dpsib)
+        flange = _flange(y_rel, p[P_DELTA], p[P_KR])
+        # Eq. (3) lateral
+        out[o] = dy
+        out[o + 1] = (Fy_l + Fy_r + Ny_l + Ny_r - spring_y - damper_y - flange) / mw
+        # Eq. (4) vertical (the normal forces' vertical components cancel the axle load)
+        out[o + 2] = dz
+        out[o + 3] = (Fz_l + Fz_r - 2.0 * p[P_KPZ] * z - 2.0 * p[P_CPZ] * dz) / mw
+        # Eq. (5) yaw: gyroscopic, creep-force moments, normal-force moment, spin moments
+        m_yaw = (
+            -gyro * dphi
+            + (Rx_r * Fy_r - Ry_r * Fx_r)
+            + (Rx_l * Fy_l - Ry_l * Fx_l)
+            + (Rx_r * Ny_r + Rx_l * Ny_l)
+            + mz_left
+            + mz_right
+            - yaw_moment
+            + Q[2 + i]
+        )
+        out[o + 4] = dpsi
+        out[o + 5] = m_yaw / p[P_IWZ]
+        # Eq. (6) roll
+        m_roll = (
+            gyro * dpsi
+            + (Ry_r * Fz_r - Rz_r * Fy_r)
+            + (Ry_l * Fz_l - Rz_l * Fy_l)
+            + (Ry_l * half_w - Rz_l * Ny_l)
+            + (Ry_r * half_w - Rz_r * Ny_r)
+            + Mx_l
+            + Mx_r
+            - 2.0 * p[P_KSY] * p[P_H2] * yb
+            - 2.0 * p[P_CSY] * p[P_H1] * dyb
+            - roll_k * phi
+            - roll_c * dphi
+        )
+        out[o + 6] = dphi
+        out[o + 7] = m_roll / p[P_IWX]
+        # Reactions on the frame (Eqs. 44-45).
+        frame_force += spring_y + damper_y
+        frame_moment += side * (L1 * spring_y + L2 * damper_y) + yaw_moment
+    # Eqs. (1)-(2) with (44)-(45): frame on the secondary suspension to a fixed car body.
+    out[16] = dyb
+    out[17] = (frame_force - 2.0 * p[P_KSY] * yb - 2.0 * p[P_CSY] * dyb + Q[0]) / p[P_MB]
+    out[18] = dpsib
+    out[19] = (
+        frame_moment
+        - 2.0 * p[P_KSX] * p[P_B2] * p[P_B2] * psib
+        - 2.0 * p[P_CSX] * p[P_B3] * p[P_B3] * dpsib
+        + Q[1]
+    ) / p[P_IBZ]
+
+
+@njit(cache=True)
+def rhs_single_kernel(x, V, Q, yt, p, out):
+    """One bogie: x (20,), V float, Q (4,), yt (2,), p coefficients, out (20,). Unchecked."""
+    _rhs_row(x, V, Q, yt, p, out)
+
+
+@njit(cache=True, parallel=True)
+def rhs_batch_kernel(x, V, Q, yt, p, out):
+    """N bogies in parallel: x (N, 20), V (N,), Q (N, 4), yt (N, 2), out (N, 20). Unchecked."""
+    for n in prange(x.shape[0]):
+        _rhs_row(x[n], V[n], Q[n], yt[n], p, out[n])
+
+
+@njit(cache=True)
+def jacobian_kernel(x, V, Q, yt, p, jac):
+    """Complex-step Jacobian d(rhs)/dx of one bogie, exact to rounding (step 1e-30)."""
+    h = 1e-30
+    xc = np.empty(N_STATES, dtype=np.complex128)
+    out = np.empty(N_STATES, dtype=np.complex128)
+    for j in range(N_STATES):
+        for k in range(N_STATES):
+            xc[k] = x[k]
+        xc[j] += 1j * h
+        _rhs_row(xc, V, Q, yt, p, out)
+        for k in range(N_STATES):
+            jac[k, j] = out[k].imag / h
+
+
+# ---------------------------------------------------------------------------------
+# Checked Python front-end
+# ---------------------------------------------------------------------------------
+
+
+def check_speed(speed: np.ndarray | float, name: str = "speed") -> np.ndarray:
+    """Speeds in m/s as a float64 array; raises if any is NaN, inf or outside the model range."""
+    v = np.asarray(speed, dtype=np.float64)
+    bad = ~np.isfinite(v) | (v < MIN_SPEED) | (v > MAX_SPEED)
+    if np.any(bad):
+        value = float(v.flat[int(np.argmax(bad.ravel()))])
+        raise ValueError(
+            f"{name} = {value:.6g} m/s ({value * 3.6:.6g} km/h) is not allowed; "
+            f"allowed: finite, {MIN_SPEED:g} to {MAX_SPEED:g} m/s ({MIN_SPEED * 3.6:g} to {MAX_SPEED * 3.6:g} km/h)"
+        )
+    return v
+
+
+def _as_rows(array, width: int, n_rows: int | None, name: str) -> np.ndarray:
+    a = np.asarray(array, dtype=np.float64)
+    if a.ndim == 1:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != width or (n_rows is not None and a.shape[0] not in (1, n_rows)):
+        expected = f"({width},) or (N, {width})" + (f" with N = {n_rows}" if n_rows is not None else "")
+        raise ValueError(f"{name} has shape {np.shape(array)}; expected {expected}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} contains NaN or inf; all entries must be finite")
+    if n_rows is not None and a.shape[0] != n_rows:
+        a = np.broadcast_to(a, (n_rows, width))
+    return np.ascontiguousarray(a)
+
+
+class BogieModel:
+    """The physics of one bogie design: parameters, contact coefficients and the equations.
+
+    It evaluates the right-hand side and its Jacobian for any batch of states, with named
+    accessors for states and inputs. It holds no simulation state; simulators and
+    environments own that.
+    """
+
+    state_names = STATE_NAMES
+    input_names = INPUT_NAMES
+
+    def __init__(self, params: BogieParams | None = None) -> None:
+        self.params = params if params is not None else BogieParams.paper()
+        self.creep = creep_coefficients(self.params)
+        self.coefficients = coefficient_vector(self.params, self.creep)
+        self.coefficients.setflags(write=False)
+
+    def __repr__(self) -> str:
+        return f"BogieModel(params={self.params.source or 'custom'!r})"
+
+    # ---- right-hand side ---------------------------------------------------------------
+    def rhs(
+        self,
+        state: np.ndarray,
+        speed: np.ndarray | float,
+        inputs: np.ndarray | None = None,
+        track: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """dx/dt for one state (20,) or a batch (N, 20); speed in m/s, scalar or (N,)."""
+        single = np.ndim(state) == 1
+        x = _as_rows(state, N_STATES, None, "state")
+        n = x.shape[0]
+        v = np.broadcast_to(check_speed(speed), (n,)) if np.ndim(speed) == 0 else check_speed(speed)
+        if v.shape != (n,):
+            raise ValueError(f"speed has shape {np.shape(speed)}; expected a scalar or ({n},)")
+        q = _as_rows(np.zeros(N_INPUTS) if inputs is None else inputs, N_INPUTS, n, "inputs")
+        yt = _as_rows(np.zeros(N_TRACK) if track is None else track, N_TRACK, n, "track")
+        out = np.empty((n, N_STATES))
+        rhs_batch_kernel(x, np.ascontiguousarray(v), q, yt, self.coefficients, out)
+        return out[0] if single else out
+
+    def jacobian(
+        self,
+        state: np.ndarray,
+        speed: float,
+        inputs: np.ndarray | None = None,
+        track: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The exact (complex-step) Jacobian d(rhs)/d(state) at one state, shape (20, 20)."""
+        x = _as_rows(state, N_STATES, 1, "state")[0]
+        v = float(check_speed(speed))
+        q = _as_rows(np.zeros(N_INPUTS) if inputs is None else inputs, N_INPUTS, 1, "inputs")[0]
+        yt = _as_rows(np.zeros(N_TRACK) if track is None else track, N_TRACK, 1, "track")[0]
+        jac = np.empty((N_STATES, N_STATES))
+        jacobian_kernel(np.ascontiguousarray(x), v, q, yt, self.coefficients, jac)
+        return jac
+
+    def input_matrix(self) -> np.ndarray:
+        """B = d(rhs)/d(inputs), shape (20, 4); the inputs enter linearly."""
+        b = np.zeros((N_STATES, N_INPUTS))
+        p = self.coefficients
+        b[state_index("dyb"), 0] = 1.0 / p[P_MB]
+        b[state_index("dpsib"), 1] = 1.0 / p[P_IBZ]
+        b[state_index("dpsi1"), 2] = 1.0 / p[P_IWZ]
+        b[state_index("dpsi2"), 3] = 1.0 / p[P_IWZ]
+        return b
+
+    # ---- equilibrium -------------------------------------------------------------------
+    def equilibrium(self, speed: float, inputs: np.ndarray | None = None, tol: float = 1e-13) -> np.ndarray:
+        """The steady state on straight, perfect track, by Newton iteration from rest.
+
+        It is not exactly zero: the constant spin creepage -+lam/r0 of the coned wheels
+        pushes both wheels' lateral creep forces into the contact planes, whose vertical
+        components lift the wheelset by ``z0 = alpha0 f12 lam^2 / (r0 Kpz)`` (Eq. 48's
+        constant term). All lateral, yaw and roll states are zero by mirror symmetry.
+        """
+        x = np.zeros(N_STATES)
+        for _ in range(50):
+            f = self.rhs(x, speed, inputs)
+            if np.max(np.abs(f)) < tol:
+                return x
+            step = np.linalg.lstsq(self.jacobian(x, speed, inputs), -f, rcond=None)[0]
+            x = x + step
+            if np.max(np.abs(step)) < 1e-16:
+                return x
+        raise RuntimeError(f"equilibrium: Newton did not converge at {speed} m/s (residual {np.max(np.abs(f)):.3g})")

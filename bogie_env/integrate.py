@@ -1,0 +1,279 @@
+"""Time integration: a compiled, batched fixed-step RK4 and scipy reference runs.
+
+The fixed-step kernel advances N bogies by one control interval ``dt`` in ``n_sub`` classic
+RK4 substeps, entirely inside compiled code. Within the interval:
+
+- the speed ramps linearly, ``V(t) = V0 + a t`` (the paper's speed-ramp runs, Section 4);
+- the distance travelled ``s(t) = s0 + V0 t + a t^2 / 2`` places each wheelset on a
+  shared, periodic track-alignment profile (``x = s + L1`` front, ``s - L1`` rear);
+- each of the 4 actuator channels applies ``u_k = F_k(t) - c_k(t) v_k(x)``: a force
+  ``F_k`` and a damping coefficient ``c_k`` that both follow a first-order lag from their
+  start values to their targets exactly (``exp(-t/tau)``), and ``v_k`` the channel's
+  relative velocity (frame lateral, frame yaw, wheelset-minus-frame yaw 1 and 2). Force
+  actuators use ``c = 0``; semi-active dampers use ``F = 0`` and ``c >= 0`` (dissipative).
+
+The generalised forces handed to the dynamics are ``Q = (u0, u1 - u2 - u3, u2, u3)``:
+wheelset steering torques react on the frame.
+
+The step size is chosen from the measured spectrum (:func:`stable_substep`): every
+eigenvalue of the linearised model over the speed range, on and off the flange, must lie
+inside RK4's stability region with a safety margin.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+from scipy.integrate import solve_ivp
+
+from .dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _rhs_row, check_speed, rhs_single_kernel
+
+#: fastmath flags of the stepping kernels: contraction and reciprocal/approximate math,
+#: but not 'nnan'/'ninf', so the kernels' NaN checks stay meaningful.
+FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
+STATUS_OK = 0
+STATUS_NONFINITE = 1
+
+
+@njit(cache=True, inline="always")
+def _track_at(profile, inv_dx, s):
+    """Linear interpolation on a periodic profile sampled every 1/inv_dx metres."""
+    m = profile.shape[0]
+    if m == 0:
+        return 0.0
+    u = s * inv_dx
+    k = math.floor(u)
+    w = u - k
+    i0 = int(k) % m
+    i1 = (i0 + 1) % m
+    return (1.0 - w) * profile[i0] + w * profile[i1]
+
+
+@njit(cache=True, inline="always")
+def _channel_velocity(x, k):
+    if k == 0:
+        return x[17]  # frame lateral velocity
+    if k == 1:
+        return x[19]  # frame yaw rate
+    return x[5 + 8 * (k - 2)] - x[19]  # wheelset yaw rate relative to the frame
+
+
+@njit(cache=True, inline="always")
+def _stage_derivative(x, t, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, out):
+    """dx/dt at time t inside the interval; also leaves the channel outputs in ``u``."""
+    for k in range(N_INPUTS):
+        w = math.exp(-decay_rate[k] * t)
+        force = f_target[k] + (f_start[k] - f_target[k]) * w
+        damping = c_target[k] + (c_start[k] - c_target[k]) * w
+        u[k] = force - damping * _channel_velocity(x, k)
+    q[0] = u[0]
+    q[1] = u[1] - u[2] - u[3]
+    q[2] = u[2]
+    q[3] = u[3]
+    s = s0 + V0 * t + 0.5 * accel * t * t
+    L1 = p[P_L1]
+    yt[0] = _track_at(profile, inv_dx, s + L1)
+    yt[1] = _track_at(profile, inv_dx, s - L1)
+    _rhs_row(x, V0 + accel * t, q, yt, p, out)
+
+
+@njit(cache=True, inline="always")
+def _advance_row(x, V0, accel, s0, dt, n_sub, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, u_end, power_mean):
+    """Advance one bogie by dt in n_sub RK4 substeps. Returns a status code."""
+    h = dt / n_sub
+    k1 = np.empty(N_STATES)
+    k2 = np.empty(N_STATES)
+    k3 = np.empty(N_STATES)
+    k4 = np.empty(N_STATES)
+    xs = np.empty(N_STATES)
+    q = np.empty(N_INPUTS)
+    yt = np.empty(2)
+    u = np.empty(N_INPUTS)
+    for k in range(N_INPUTS):
+        power_mean[k] = 0.0
+    for j in range(n_sub):
+        t = j * h
+        _stage_derivative(x, t, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, k1)
+        for k in range(N_INPUTS):
+            power_mean[k] += u[k] * _channel_velocity(x, k) / 6.0
+        for i in range(N_STATES):
+            xs[i] = x[i] + 0.5 * h * k1[i]
+        _stage_derivative(xs, t + 0.5 * h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, k2)
+        for k in range(N_INPUTS):
+            power_mean[k] += u[k] * _channel_velocity(xs, k) / 3.0
+        for i in range(N_STATES):
+            xs[i] = x[i] + 0.5 * h * k2[i]
+        _stage_derivative(xs, t + 0.5 * h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, k3)
+        for k in range(N_INPUTS):
+            power_mean[k] += u[k] * _channel_velocity(xs, k) / 3.0
+        for i in range(N_STATES):
+            xs[i] = x[i] + h * k3[i]
+        _stage_derivative(xs, t + h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, k4)
+        for k in range(N_INPUTS):
+            power_mean[k] += u[k] * _channel_velocity(xs, k) / 6.0
+        for i in range(N_STATES):
+            x[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    for k in range(N_INPUTS):
+        power_mean[k] /= n_sub
+    # channel outputs at the end of the interval
+    for k in range(N_INPUTS):
+        w = math.exp(-decay_rate[k] * dt)
+        force = f_target[k] + (f_start[k] - f_target[k]) * w
+        damping = c_target[k] + (c_start[k] - c_target[k]) * w
+        u_end[k] = force - damping * _channel_velocity(x, k)
+    for i in range(N_STATES):
+        if not math.isfinite(x[i]):
+            return STATUS_NONFINITE
+    return STATUS_OK
+
+
+@njit(cache=True, parallel=True, fastmath=FASTMATH)
+def advance_batch_kernel(x, V, accel, s, dt, n_sub, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, u_end, power_mean, status):
+    """Advance N bogies in place by dt; V and s advance too. Rows run in parallel.
+
+    Shapes: x (N, 20); V, accel, s, status (N,); f_start, f_target, c_start, c_target,
+    u_end, power_mean (N, 4); decay_rate (4,) = 1/tau per channel (0: no lag);
+    profile (M,) shared periodic track alignment (M = 0: perfect track).
+    """
+    for n in prange(x.shape[0]):
+        status[n] = _advance_row(
+            x[n], V[n], accel[n], s[n], dt, n_sub, f_start[n], f_target[n], c_start[n], c_target[n],
+            decay_rate, profile, inv_dx, p, u_end[n], power_mean[n],
+        )  # fmt: skip
+        s[n] += V[n] * dt + 0.5 * accel[n] * dt * dt
+        V[n] += accel[n] * dt
+
+
+@njit(cache=True, fastmath=FASTMATH)
+def simulate_ramp_kernel(x, V, accel, dt, n_sub, n_steps, record_every, profile, inv_dx, s, p, v_floor, v_ceiling, states_out, speeds_out):
+    """One passive bogie for n_steps intervals of dt, recording every ``record_every``.
+
+    The speed is held inside [v_floor, v_ceiling]. Returns the number of records written
+    and a status code (non-finite state stops the run).
+    """
+    zeros = np.zeros(N_INPUTS)
+    u_end = np.empty(N_INPUTS)
+    power = np.empty(N_INPUTS)
+    n_rec = 0
+    for step in range(n_steps):
+        if step % record_every == 0:
+            for i in range(N_STATES):
+                states_out[n_rec, i] = x[i]
+            speeds_out[n_rec] = V
+            n_rec += 1
+        a = accel
+        if V + a * dt > v_ceiling or V + a * dt < v_floor:
+            a = 0.0
+        code = _advance_row(x, V, a, s, dt, n_sub, zeros, zeros, zeros, zeros, zeros, profile, inv_dx, p, u_end, power)
+        s += V * dt + 0.5 * a * dt * dt
+        V += a * dt
+        if code != STATUS_OK:
+            return n_rec, code
+    for i in range(N_STATES):
+        states_out[n_rec, i] = x[i]
+    speeds_out[n_rec] = V
+    return n_rec + 1, STATUS_OK
+
+
+# ---------------------------------------------------------------------------------
+# Step-size selection from the spectrum
+# ---------------------------------------------------------------------------------
+
+
+def rk4_amplification(z: np.ndarray) -> np.ndarray:
+    """|R(z)| of classic RK4, R(z) = 1 + z + z^2/2 + z^3/6 + z^4/24."""
+    z = np.asarray(z, dtype=complex)
+    return np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
+
+
+def spectrum(model: BogieModel, speeds: np.ndarray, flange: bool = True) -> np.ndarray:
+    """Eigenvalues (n_speeds, 20 or 40) at equilibrium and, with ``flange``, in flange contact."""
+    x_eq = model.equilibrium(float(np.max(speeds)))
+    states = [x_eq]
+    if flange:
+        engaged = x_eq.copy()
+        engaged[[0, 8, 16]] = model.coefficients[P_DELTA] + 1e-3  # both wheelsets on the flange
+        states.append(engaged)
+    rows = []
+    for v in np.atleast_1d(speeds):
+        rows.append(np.concatenate([np.linalg.eigvals(model.jacobian(xx, float(v))) for xx in states]))
+    return np.array(rows)
+
+
+@dataclass(frozen=True)
+class StepChoice:
+    """The RK4 substep chosen for a speed range, with the evidence."""
+
+    substep: float  # s
+    n_sub: int
+    spectral_radius: float  # 1/s, the largest |lambda| seen
+    margin: float  # the chosen step keeps |R(margin * h * lambda)| <= 1
+
+
+def stable_substep(
+    model: BogieModel, v_min: float, v_max: float, dt: float, margin: float = 1.25, n_speeds: int = 7
+) -> StepChoice:
+    """The fewest RK4 substeps per ``dt`` that keep every eigenvalue stable with a margin.
+
+    The eigenvalues over ``[v_min, v_max]`` (m/s), at the equilibrium and in flange contact,
+    scaled by ``margin * h``, must lie in RK4's stability region ``|R(z)| <= 1`` (or grow no
+    faster than the exact ``exp(z)`` for the few eigenvalues in the right half-plane).
+    """
+    check_speed(v_min, "v_min")
+    check_speed(v_max, "v_max")
+    speeds = np.linspace(v_min, v_max, n_speeds)
+    eigenvalues = spectrum(model, speeds).ravel()
+    for n_sub in range(1, 10_000):
+        h = dt / n_sub
+        z = margin * h * eigenvalues
+        # Growing modes (the hunting mode above the critical speed) may grow, as they truly do.
+        if np.all(rk4_amplification(z) <= np.maximum(1.0, np.exp(z.real)) + 1e-12):
+            return StepChoice(h, n_sub, float(np.max(np.abs(eigenvalues))), margin)
+    raise RuntimeError("stable_substep: no stable step found")
+
+
+# ---------------------------------------------------------------------------------
+# Python front-ends
+# ---------------------------------------------------------------------------------
+
+
+def empty_profile() -> np.ndarray:
+    """A zero-length profile: perfect track."""
+    return np.zeros(0)
+
+
+def reference_solution(
+    model: BogieModel,
+    x0: np.ndarray,
+    speed: float,
+    t_span: tuple[float, float],
+    accel: float = 0.0,
+    method: str = "DOP853",
+    rtol: float = 1e-9,
+    atol: float = 1e-12,
+    t_eval: np.ndarray | None = None,
+    max_step: float = np.inf,
+):
+    """A scipy ``solve_ivp`` reference run of one passive bogie on perfect track.
+
+    The speed is ``speed + accel * (t - t_span[0])`` (m/s). Returns scipy's OdeResult.
+    """
+    x0 = np.asarray(x0, dtype=float)
+    if x0.shape != (N_STATES,) or not np.all(np.isfinite(x0)):
+        raise ValueError(f"x0 must be a finite array of shape ({N_STATES},); got shape {x0.shape}")
+    check_speed(speed)
+    check_speed(speed + accel * (t_span[1] - t_span[0]), "final speed")
+    p = model.coefficients
+    zeros_q = np.zeros(N_INPUTS)
+    zeros_t = np.zeros(2)
+    out = np.empty(N_STATES)
+
+    def f(t, x):
+        rhs_single_kernel(x, speed + accel * (t - t_span[0]), zeros_q, zeros_t, p, out)
+        return out.copy()
+
+    return solve_ivp(f, t_span, x0, method=method, rtol=rtol, atol=atol, t_eval=t_eval, max_step=max_step)

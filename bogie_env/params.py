@@ -1,0 +1,267 @@
+"""Bogie parameters: Table 1 of Bustos et al. (2022) plus named assumptions.
+
+A :class:`BogieParams` is immutable and validated field by field. It loads from
+``configs/bogie/*.yaml`` (SI units), rejects unknown keys, and derives variants for
+sensitivity studies::
+
+    p = BogieParams.from_yaml()                 # configs/bogie/paper.yaml
+    q = p.scaled(Csy=0.5)                       # secondary lateral damping -50 %
+    r = p.replace(Kpz=1.0e6, mu=0.4)
+
+Names are the paper's symbols without braces or underscores (``Kpx``, ``Csy``, ``Wpa``,
+...). The conicity λ is ``lam`` and the flange clearance δ is ``delta``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+#: Folder of the shipped configs (the repository's ``configs/``).
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+DEFAULT_BOGIE_CONFIG = CONFIG_DIR / "bogie" / "paper.yaml"
+
+
+class ConfigError(ValueError):
+    """A configuration value or key is not allowed. The message names field, value and rule."""
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """What a parameter means and which values it may take."""
+
+    unit: str
+    description: str
+    low: float
+    high: float
+    low_inclusive: bool = True
+    allow_inf: bool = False
+    optional: bool = False
+    source: str = "Table 1"
+
+    def allowed(self) -> str:
+        left = "[" if self.low_inclusive else "("
+        high = "inf" if math.isinf(self.high) else f"{self.high:g}"
+        text = f"{left}{self.low:g}, {high}]"
+        if self.allow_inf:
+            text += " or .inf"
+        if self.optional:
+            text += " or null (computed)"
+        return f"{text} {self.unit}".rstrip()
+
+
+_T1 = "Table 1"
+_A = "assumption (docs/model.md)"
+_O = "optional override (docs/model.md)"
+
+#: Every parameter, in config order. Ranges are deliberately wide (plausible for any
+#: standard-gauge passenger or freight bogie) but exclude non-physical values.
+FIELDS: dict[str, FieldSpec] = {
+    "mb": FieldSpec("kg", "bogie frame mass", 100.0, 2.0e4, False),
+    "Ibz": FieldSpec("kg m^2", "bogie frame yaw inertia", 50.0, 5.0e4, False),
+    "mw": FieldSpec("kg", "wheelset mass", 100.0, 5.0e3, False),
+    "Iwx": FieldSpec("kg m^2", "wheelset roll inertia", 10.0, 5.0e3, False),
+    "Iwy": FieldSpec("kg m^2", "wheelset pitch (spin) inertia", 1.0, 2.0e3, False),
+    "Iwz": FieldSpec("kg m^2", "wheelset yaw inertia", 10.0, 5.0e3, False),
+    "L1": FieldSpec("m", "frame CG to primary lateral springs (semi-wheelbase)", 0.3, 3.0, False),
+    "L2": FieldSpec("m", "frame CG to primary lateral dampers", 0.3, 3.0, False),
+    "b1": FieldSpec("m", "semi-spacing of primary longitudinal springs/dampers", 0.2, 2.0, False),
+    "b2": FieldSpec("m", "semi-spacing of secondary longitudinal springs", 0.2, 2.0, False),
+    "b3": FieldSpec("m", "semi-spacing of secondary longitudinal dampers", 0.2, 2.0, False),
+    "h1": FieldSpec("m", "height of the secondary lateral damper above the wheelset", 0.0, 2.0),
+    "h2": FieldSpec("m", "height of the secondary lateral spring above the wheelset", 0.0, 2.0),
+    "e": FieldSpec("m", "half track gauge (contact-point semi-spacing)", 0.3, 1.0, False),
+    "r0": FieldSpec("m", "wheel radius", 0.15, 0.8, False),
+    "lam": FieldSpec("-", "wheel conicity λ", 1.0e-3, 0.5, False),
+    "Wpa": FieldSpec("N", "axle load (a force)", 1.0e4, 4.0e5, False),
+    "Kpx": FieldSpec("N/m", "primary longitudinal stiffness", 0.0, 1.0e9),
+    "Kpy": FieldSpec("N/m", "primary lateral stiffness", 0.0, 1.0e9),
+    "Kpz": FieldSpec("N/m", "primary vertical stiffness", 1.0e3, 1.0e9, False),
+    "Cpx": FieldSpec("N s/m", "primary longitudinal damping", 0.0, 1.0e7),
+    "Cpy": FieldSpec("N s/m", "primary lateral damping", 0.0, 1.0e7),
+    "Cpz": FieldSpec("N s/m", "primary vertical damping", 0.0, 1.0e7),
+    "Ksx": FieldSpec("N/m", "secondary longitudinal stiffness", 0.0, 1.0e8),
+    "Ksy": FieldSpec("N/m", "secondary lateral stiffness", 0.0, 1.0e8),
+    "Csx": FieldSpec("N s/m", "secondary longitudinal damping", 0.0, 1.0e7),
+    "Csy": FieldSpec("N s/m", "secondary lateral damping", 0.0, 1.0e7),
+    "Kr": FieldSpec("N/m", "rail lateral stiffness at flange contact", 1.0e4, 1.0e10, False),
+    "delta": FieldSpec("m", "flange clearance", 1.0e-4, 0.05, False),
+    "E": FieldSpec("Pa", "Young's modulus of steel", 1.0e10, 1.0e12, False, source=_A),
+    "nu": FieldSpec("-", "Poisson's ratio of steel", 0.0, 0.5, source=_A),
+    "mu": FieldSpec("-", "wheel-rail friction coefficient", 0.01, 2.0, False, source=_A),
+    "Rrail": FieldSpec("m", "rail-head transverse radius", 0.01, 100.0, False, allow_inf=True, source=_A),
+    "Rwheel": FieldSpec("m", "wheel transverse radius (.inf: conical)", 0.01, 100.0, False, allow_inf=True, source=_A),
+    "f11": FieldSpec("N", "lateral creep coefficient override", 0.0, 1.0e10, optional=True, source=_O),
+    "f12": FieldSpec("N m", "lateral/spin creep coefficient override", 0.0, 1.0e8, optional=True, source=_O),
+    "f22": FieldSpec("N m^2", "spin creep coefficient override", 0.0, 1.0e6, optional=True, source=_O),
+    "f33": FieldSpec("N", "longitudinal creep coefficient override", 0.0, 1.0e10, optional=True, source=_O),
+}
+
+#: The nine parameters of the paper's sensitivity study (Section 5).
+SENSITIVITY_PARAMS: tuple[str, ...] = ("Wpa", "Kpx", "Kpy", "Kpz", "Cpz", "Ksx", "Ksy", "Csx", "Csy")
+
+
+def validate_value(name: str, value: Any) -> float | None:
+    """Return ``value`` as a float if parameter ``name`` may take it, else raise ConfigError."""
+    if name not in FIELDS:
+        raise ConfigError(f"unknown parameter {name!r}; known parameters: {', '.join(FIELDS)}")
+    spec = FIELDS[name]
+    if value is None:
+        if spec.optional:
+            return None
+        raise ConfigError(f"parameter {name!r} is required; allowed: {spec.allowed()}")
+    if isinstance(value, bool):
+        raise ConfigError(f"parameter {name!r} = {value!r} is a boolean; allowed: {spec.allowed()}")
+    if isinstance(value, str):
+        text = value.strip().lower()
+        if spec.optional and text in ("null", "none", ""):
+            return None
+        try:
+            value = float(text.replace(".inf", "inf"))
+        except ValueError:
+            raise ConfigError(f"parameter {name!r} = {value!r} is not a number; allowed: {spec.allowed()}") from None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"parameter {name!r} = {value!r} is not a number; allowed: {spec.allowed()}") from None
+    if math.isnan(number):
+        raise ConfigError(f"parameter {name!r} = nan is not a number; allowed: {spec.allowed()}")
+    if math.isinf(number):
+        if number > 0 and spec.allow_inf:
+            return number
+        raise ConfigError(f"parameter {name!r} = {number} is not finite; allowed: {spec.allowed()}")
+    too_low = number < spec.low if spec.low_inclusive else number <= spec.low
+    if too_low or number > spec.high:
+        raise ConfigError(
+            f"parameter {name!r} = {number:g} is out of range ({spec.description}); allowed: {spec.allowed()}"
+        )
+    return number
+
+
+@dataclass(frozen=True)
+class BogieParams:
+    """Validated, immutable bogie parameters in SI units (see :data:`FIELDS`)."""
+
+    mb: float
+    Ibz: float
+    mw: float
+    Iwx: float
+    Iwy: float
+    Iwz: float
+    L1: float
+    L2: float
+    b1: float
+    b2: float
+    b3: float
+    h1: float
+    h2: float
+    e: float
+    r0: float
+    lam: float
+    Wpa: float
+    Kpx: float
+    Kpy: float
+    Kpz: float
+    Cpx: float
+    Cpy: float
+    Cpz: float
+    Ksx: float
+    Ksy: float
+    Csx: float
+    Csy: float
+    Kr: float
+    delta: float
+    E: float
+    nu: float
+    mu: float
+    Rrail: float
+    Rwheel: float
+    f11: float | None = None
+    f12: float | None = None
+    f22: float | None = None
+    f33: float | None = None
+    source: str = field(default="", compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        for name in FIELDS:
+            object.__setattr__(self, name, validate_value(name, getattr(self, name)))
+
+    # ---- construction -------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any], source: str = "") -> "BogieParams":
+        """Build from a mapping; unknown keys and missing required keys are errors."""
+        if not isinstance(values, Mapping):
+            raise ConfigError(f"bogie config {source or ''} must be a mapping of parameter names to numbers")
+        unknown = [key for key in values if key not in FIELDS]
+        if unknown:
+            raise ConfigError(
+                f"unknown bogie parameter(s) {', '.join(map(repr, unknown))}"
+                f"{' in ' + source if source else ''}; known parameters: {', '.join(FIELDS)}"
+            )
+        missing = [name for name, spec in FIELDS.items() if not spec.optional and name not in values]
+        if missing:
+            raise ConfigError(f"missing bogie parameter(s) {', '.join(missing)}{' in ' + source if source else ''}")
+        return cls(**{key: values[key] for key in values}, source=source)
+
+    @classmethod
+    def from_yaml(cls, path: str | Path | None = None) -> "BogieParams":
+        """Load a YAML preset; ``None`` loads ``configs/bogie/paper.yaml``."""
+        path = Path(path) if path is not None else DEFAULT_BOGIE_CONFIG
+        if not path.is_file():
+            raise ConfigError(f"bogie config file {str(path)!r} does not exist")
+        with path.open() as handle:
+            values = yaml.safe_load(handle) or {}
+        return cls.from_dict(values, source=str(path))
+
+    @classmethod
+    def paper(cls) -> "BogieParams":
+        """The preset that follows the printed paper (the default everywhere)."""
+        return cls.from_yaml(DEFAULT_BOGIE_CONFIG)
+
+    # ---- variants -----------------------------------------------------------------
+    def replace(self, **changes: Any) -> "BogieParams":
+        """A copy with some parameters set to new values (validated)."""
+        for name in changes:
+            if name not in FIELDS:
+                raise ConfigError(f"unknown parameter {name!r}; known parameters: {', '.join(FIELDS)}")
+        return dataclasses.replace(self, **changes)
+
+    def scaled(self, **factors: float) -> "BogieParams":
+        """A copy with parameters multiplied by factors, e.g. ``scaled(Csy=0.5, Kpz=2.5)``."""
+        changes = {}
+        for name, factor in factors.items():
+            base = getattr(self, name) if name in FIELDS else None
+            if name not in FIELDS:
+                raise ConfigError(f"unknown parameter {name!r}; known parameters: {', '.join(FIELDS)}")
+            if base is None:
+                raise ConfigError(f"parameter {name!r} is not set (null), so it cannot be scaled")
+            factor = float(factor)
+            if not math.isfinite(factor) or factor < 0:
+                raise ConfigError(f"scale factor for {name!r} = {factor!r} must be finite and >= 0")
+            changes[name] = base * factor
+        return self.replace(**changes)
+
+    def with_overrides(self, assignments: list[str] | tuple[str, ...]) -> "BogieParams":
+        """Apply ``NAME=VALUE`` strings (the CLI's ``--set``)."""
+        changes: dict[str, Any] = {}
+        for item in assignments:
+            if "=" not in item:
+                raise ConfigError(f"--set {item!r}: expected NAME=VALUE, e.g. Csy=45000")
+            name, value = (part.strip() for part in item.split("=", 1))
+            changes[name] = value
+        return self.replace(**changes)
+
+    def to_dict(self) -> dict[str, float | None]:
+        """Parameter name to value, in config order."""
+        return {name: getattr(self, name) for name in FIELDS}
+
+
+def load_params(config: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> BogieParams:
+    """Load a preset (default: the paper's) and apply ``NAME=VALUE`` overrides."""
+    params = BogieParams.from_yaml(config)
+    return params.with_overrides(list(overrides)) if overrides else params

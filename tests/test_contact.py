@@ -1,0 +1,152 @@
+"""Contact mechanics against independent oracles: Hertz theory, Kalker's table, the
+Johnson-Vermeulen saturation law and the flange law of Eq. (46)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+from scipy.optimize import fsolve
+
+from bogie_env.contact import (
+    creep_coefficients,
+    flange_force,
+    hertz_ellipse,
+    kalker_coefficients,
+    saturated_force_ratio,
+    saturation_factor,
+    wheel_rail_curvatures,
+)
+
+E_STEEL, NU_STEEL = 2.1e11, 0.3
+
+
+def test_hertz_circular_case_is_sphere_on_flat():
+    # A sphere of radius R on a flat, identical steels: a = (3 N R / (4 E*))^(1/3).
+    radius, load = 0.46, 75e3
+    e_star = E_STEEL / (2 * (1 - NU_STEEL**2))
+    contact = hertz_ellipse(load, 1 / (2 * radius), 1 / (2 * radius), E_STEEL, NU_STEEL)
+    expected = (3 * load * radius / (4 * e_star)) ** (1 / 3)
+    assert contact.a == pytest.approx(expected, rel=1e-10)
+    assert contact.b == pytest.approx(expected, rel=1e-10)
+
+
+def _hertz_by_quadrature(load, A, B, E, nu):
+    """Independent formulation: Hertz's potential integrals solved for (a, b).
+
+    A = 3N/(4 pi E*) int_0^inf dw / ((a^2+w)^(3/2) (b^2+w)^(1/2) w^(1/2)), B likewise with a<->b
+    (the constant fixed by the sphere-on-flat case).
+    """
+    e_star = E / (2 * (1 - nu**2))
+
+    def integral(p, q):
+        f = lambda t: 2.0 / ((p * p + t * t) ** 1.5 * (q * q + t * t) ** 0.5)  # w = t^2
+        return quad(f, 0, np.inf, limit=200)[0]
+
+    def residual(log_ab):
+        a, b = np.exp(log_ab)
+        k = 3 * load / (4 * math.pi * e_star)
+        return [k * integral(a, b) / A - 1, k * integral(b, a) / B - 1]
+
+    guess = (3 * load / (4 * e_star * (A + B))) ** (1 / 3)
+    a, b = np.exp(fsolve(residual, [math.log(guess), math.log(guess)], xtol=1e-13))
+    return a, b
+
+
+@pytest.mark.parametrize("ratio", [1.0, 1.3, 1.533, 3.0, 10.0, 0.2])
+def test_hertz_matches_independent_quadrature(ratio):
+    A = 1.0
+    B = A * ratio
+    contact = hertz_ellipse(75e3, A, B, E_STEEL, NU_STEEL)
+    a, b = _hertz_by_quadrature(75e3, A, B, E_STEEL, NU_STEEL)
+    assert contact.a == pytest.approx(a, rel=1e-6)
+    assert contact.b == pytest.approx(b, rel=1e-6)
+    # the longer axis lies along the smaller curvature
+    assert (contact.a >= contact.b) == (A <= B)
+
+
+# Classic Hertz coefficients m, n against the auxiliary angle theta, cos(theta) = |B-A|/(A+B)
+# (Timoshenko & Goodier, Theory of Elasticity, 1951, Sec. 140; reproduced in Garg & Dukkipati 1984).
+HERTZ_MN_TABLE = {  # theta deg: (m, n)
+    30: (2.731, 0.493), 35: (2.397, 0.530), 40: (2.136, 0.567), 45: (1.926, 0.604), 50: (1.754, 0.641),
+    55: (1.611, 0.678), 60: (1.486, 0.717), 65: (1.378, 0.759), 70: (1.284, 0.802), 75: (1.202, 0.846),
+    80: (1.128, 0.893), 85: (1.061, 0.944), 90: (1.000, 1.000),
+}
+
+
+@pytest.mark.parametrize("theta_deg", sorted(HERTZ_MN_TABLE))
+def test_hertz_against_classic_m_n_table(theta_deg):
+    m_ref, n_ref = HERTZ_MN_TABLE[theta_deg]
+    A = 1.0
+    B = A * (1 + math.cos(math.radians(theta_deg))) / (1 - math.cos(math.radians(theta_deg)))
+    load = 75e3
+    contact = hertz_ellipse(load, A, B, E_STEEL, NU_STEEL)
+    scale = (3 * load * (1 - NU_STEEL**2) / (2 * E_STEEL * (A + B))) ** (1 / 3)
+    assert contact.a / scale == pytest.approx(m_ref, rel=4e-3)
+    assert contact.b / scale == pytest.approx(n_ref, rel=4e-3)
+
+
+def test_paper_contact_ellipse_is_plausible(paper_params):
+    # UIC60 crown radius on a cone: a few mm semi-axes, longer in the rolling direction.
+    A, B = wheel_rail_curvatures(paper_params)
+    assert A == pytest.approx(1 / (2 * 0.46)) and B == pytest.approx(1 / (2 * 0.3))
+    creep = creep_coefficients(paper_params)
+    assert 3e-3 < creep.contact.b < creep.contact.a < 9e-3
+    # creep coefficients of order 1e7 N, as for any main-line wheelset (Garg & Dukkipati Table 7.2)
+    assert 5e6 < creep.f11 < 2e7 and 5e6 < creep.f33 < 2e7
+
+
+def test_load_dependence_of_contact_follows_cube_root(paper_params):
+    heavy = creep_coefficients(paper_params.scaled(Wpa=1.5))
+    nominal = creep_coefficients(paper_params)
+    assert heavy.contact.a / nominal.contact.a == pytest.approx(1.5 ** (1 / 3), rel=1e-9)
+    assert heavy.f11 / nominal.f11 == pytest.approx(1.5 ** (2 / 3), rel=1e-9)
+
+
+def test_creep_coefficient_overrides(paper_params):
+    creep = creep_coefficients(paper_params.replace(f11=8e6, f12=0.0))
+    assert creep.f11 == 8e6 and creep.f12 == 0.0 and creep.f33 > 0
+
+
+# --- saturation (Eq. 26 corrected): F/(mu N) = u - u^2/3 + u^3/27 for u < 3, else 1 ---------
+def test_saturation_slope_one_at_origin():
+    h = 1e-7
+    assert saturated_force_ratio(h) / h == pytest.approx(1.0, abs=1e-6)
+    assert saturation_factor(0.0) == 1.0
+
+
+def test_saturation_reaches_mu_n_with_zero_slope_at_three():
+    assert saturated_force_ratio(3.0) == pytest.approx(1.0, abs=1e-15)
+    h = 1e-6
+    left_slope = (saturated_force_ratio(3.0) - saturated_force_ratio(3.0 - h)) / h
+    right_slope = (saturated_force_ratio(3.0 + h) - saturated_force_ratio(3.0)) / h
+    assert abs(left_slope) < 1e-5 and abs(right_slope) < 1e-12
+    # continuity of the factor itself across the branch point
+    assert saturation_factor(3.0 - 1e-12) == pytest.approx(saturation_factor(3.0 + 1e-12), abs=1e-11)
+
+
+def test_saturated_force_is_monotone_and_bounded():
+    u = np.linspace(0, 20, 2001)
+    ratio = saturated_force_ratio(u)
+    assert np.all(np.diff(ratio) >= -1e-15)
+    assert np.all(ratio <= 1.0 + 1e-15)
+    np.testing.assert_allclose(ratio[u >= 3], 1.0, atol=1e-14)
+    # the derivative is (1 - u/3)^2 below saturation
+    mid = (u > 0.1) & (u < 2.9)
+    np.testing.assert_allclose(np.gradient(ratio, u)[mid], (1 - u[mid] / 3) ** 2, atol=1e-4)
+
+
+def test_saturation_rejects_bad_input():
+    with pytest.raises(ValueError):
+        saturation_factor(-1.0)
+    with pytest.raises(ValueError):
+        saturation_factor(float("nan"))
+
+
+# --- flange contact, Eq. (46) --------------------------------------------------------------
+def test_flange_force_piecewise_linear():
+    delta, stiffness = 0.009, 1.617e7
+    y = np.array([-0.02, -0.009, -0.005, 0.0, 0.005, 0.009, 0.0095, 0.02])
+    expected = np.where(np.abs(y) > delta, stiffness * (y - np.sign(y) * delta), 0.0)
+    np.testing.assert_allclose(flange_force(y, delta, stiffness), expected, rtol=1e-14, atol=1e-9)
+    assert flange_force(0.01, delta, stiffness) == pytest.approx(-flange_force(-0.01, delta, stiffness))
