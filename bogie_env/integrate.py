@@ -33,7 +33,7 @@ from .dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _rhs_row, c
 
 #: fastmath flags of the stepping kernels: contraction and reciprocal/approximate math,
 #: but not 'nnan'/'ninf', so the kernels' NaN checks stay meaningful.
-FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+FASTMATH = {"nsz", "contract", "reassoc"}
 
 STATUS_OK = 0
 STATUS_NONFINITE = 1

@@ -1,0 +1,129 @@
+"""The fixed-step integrator: convergence order, agreement with scipy, the spectrum-based
+step choice, batching, actuator lag and NaN detection."""
+
+import math
+
+import numpy as np
+import pytest
+
+from bogie_env.dynamics import N_STATES, state_index
+from bogie_env.integrate import (
+    STATUS_NONFINITE,
+    STATUS_OK,
+    advance_batch_kernel,
+    reference_solution,
+    rk4_amplification,
+    stable_substep,
+)
+
+
+def run_fixed(model, x0, speed, t_end, dt, n_sub, accel=0.0, n_rows=1, f_start=None, f_target=None,
+              c_start=None, c_target=None, decay=None):
+    x = np.repeat(np.asarray(x0, float)[None, :], n_rows, axis=0)
+    v, a, s = np.full(n_rows, speed), np.full(n_rows, accel), np.zeros(n_rows)
+    z = np.zeros((n_rows, 4))
+    f_start = z if f_start is None else f_start
+    f_target = z if f_target is None else f_target
+    c_start = z if c_start is None else c_start
+    c_target = z if c_target is None else c_target
+    decay = np.zeros(4) if decay is None else decay
+    u, power, status = np.zeros((n_rows, 4)), np.zeros((n_rows, 4)), np.zeros(n_rows, np.int64)
+    for _ in range(int(round(t_end / dt))):
+        advance_batch_kernel(x, v, a, s, dt, n_sub, f_start, f_target, c_start, c_target, decay,
+                             np.zeros(0), 1.0, model.coefficients, u, power, status)
+    return x, v, s, u, power, status
+
+
+def perturbed(model, speed):
+    x0 = model.equilibrium(speed)
+    x0[state_index("y1")] += 2e-3
+    x0[state_index("psi2")] += 1e-3
+    return x0
+
+
+def test_rk4_fourth_order_convergence(paper_model):
+    """Small perturbation, so each wheel's creep-force vector stays near its equilibrium value
+    (the constant spin force): far from |F| = 0, where the norm in Eq. (28) has a kink that
+    would cap any method's order."""
+    speed, t_end = 90.0, 0.4
+    x0 = paper_model.equilibrium(speed)
+    x0[state_index("y1")] += 2e-6
+    x0[state_index("psi2")] += 1e-6
+    ref = reference_solution(paper_model, x0, speed, (0.0, t_end), rtol=1e-13, atol=1e-18).y[:, -1]
+    errors = []
+    steps = [0.002, 0.001, 0.0005, 0.00025]  # asymptotic range: h |lambda|max <= 1.1
+    for h in steps:
+        x = run_fixed(paper_model, x0, speed, t_end, 0.02, int(round(0.02 / h)))[0][0]
+        errors.append(np.max(np.abs(x - ref)))
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(orders > 3.6) and np.all(orders < 4.4), (errors, orders)
+
+
+def test_fixed_step_matches_scipy_with_speed_ramp(paper_model):
+    speed, accel, t_end = 85.0, 0.5, 3.0
+    x0 = perturbed(paper_model, speed)
+    ref = reference_solution(paper_model, x0, speed, (0.0, t_end), accel=accel, rtol=1e-11, atol=1e-14)
+    choice = stable_substep(paper_model, speed, speed + accel * t_end, 0.01)
+    x, v, s, *_ = run_fixed(paper_model, x0, speed, t_end, 0.01, choice.n_sub, accel=accel)
+    assert v[0] == pytest.approx(speed + accel * t_end, rel=1e-12)
+    assert s[0] == pytest.approx(speed * t_end + 0.5 * accel * t_end**2, rel=1e-12)
+    scale = np.max(np.abs(ref.y), axis=1) + 1e-12
+    assert np.max(np.abs(x[0] - ref.y[:, -1]) / scale) < 1e-3
+
+
+def test_step_choice_is_justified_by_the_spectrum(paper_model):
+    """The step chosen from the spectrum integrates stably; one far beyond it does not."""
+    speed = 300 / 3.6
+    choice = stable_substep(paper_model, speed, 600 / 3.6, 0.01)
+    assert 300 < choice.spectral_radius < 800  # |lambda| ~ 530 1/s (wheelset yaw/roll)
+    assert choice.substep * choice.spectral_radius < 2.83  # inside RK4's stability boundary
+    x0 = perturbed(paper_model, speed)
+    good = run_fixed(paper_model, x0, speed, 2.0, 0.01, choice.n_sub)[0]
+    assert np.all(np.isfinite(good)) and np.max(np.abs(good[0, [0, 8, 16]])) < 3e-3
+    h_bad = 2.0 * 2.83 / choice.spectral_radius  # twice the boundary step
+    bad = run_fixed(paper_model, x0, speed, 2.0, 0.01 * round(h_bad / 0.01 + 0.5), 1)
+    assert bad[5][0] == STATUS_NONFINITE or np.max(np.abs(bad[0])) > 1.0
+
+
+def test_rk4_amplification_polynomial():
+    assert rk4_amplification(0.0) == pytest.approx(1.0)
+    assert rk4_amplification(-2.785) == pytest.approx(1.0, abs=1e-3)  # real-axis boundary
+    assert rk4_amplification(2.8284j) == pytest.approx(1.0, abs=1e-3)  # imaginary-axis boundary
+
+
+def test_batch_rows_are_independent_and_bitwise_reproducible(paper_model):
+    x0 = perturbed(paper_model, 100.0)
+    one = run_fixed(paper_model, x0, 100.0, 0.5, 0.01, 3, n_rows=1)[0]
+    many = run_fixed(paper_model, x0, 100.0, 0.5, 0.01, 3, n_rows=37)[0]
+    assert np.array_equal(many, np.repeat(one, 37, axis=0))
+
+
+def test_actuator_lag_is_exact_first_order(paper_model):
+    """Force channels follow F(t) = F* + (F0 - F*) exp(-t/tau) exactly."""
+    tau = 1 / (2 * math.pi * 10.0)
+    x0 = paper_model.equilibrium(100.0)
+    target = np.array([[5e3, 0.0, 0.0, 0.0]])
+    dt = 0.01
+    *_, u, power, status = run_fixed(paper_model, x0, 100.0, dt, dt, 3, f_target=target,
+                                     decay=np.full(4, 1 / tau))
+    assert status[0] == STATUS_OK
+    assert u[0, 0] == pytest.approx(5e3 * (1 - math.exp(-dt / tau)), rel=1e-12)
+
+
+def test_semi_active_damper_only_dissipates(paper_model):
+    x0 = perturbed(paper_model, 100.0)
+    x0[state_index("dyb")] = 0.05
+    x0[state_index("dpsi1")] = 0.05
+    damping = np.array([[2e4, 1e4, 5e3, 5e3]])
+    for _ in range(3):
+        x, *_, u, power, status = run_fixed(paper_model, x0, 100.0, 0.01, 0.01, 3, c_start=damping,
+                                            c_target=damping)
+        assert np.all(power <= 1e-12)
+        x0 = x[0]
+
+
+def test_nonfinite_state_is_flagged(paper_model):
+    x0 = paper_model.equilibrium(100.0)
+    x0[3] = np.nan
+    status = run_fixed(paper_model, x0, 100.0, 0.01, 0.01, 2)[5]
+    assert status[0] == STATUS_NONFINITE
