@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numba import njit
@@ -41,6 +42,15 @@ def _k_minus_e_over_m(m: float) -> float:
     if m < 1e-6:
         return math.pi / 4.0 * (1.0 + 3.0 * m / 8.0)
     return (ellipk(m) - ellipe(m)) / m
+
+
+@lru_cache(maxsize=256)
+def _eccentricity_squared(ratio: float) -> float:
+    """Solve B/A = ratio (>= 1) for m = e^2; cached, since load variants share the shape."""
+    if ratio - 1.0 < 1e-12:
+        return 0.0
+    # _hertz_ratio rises monotonically from 1 (m = 0) to infinity (m -> 1).
+    return brentq(lambda mm: _hertz_ratio(mm) - ratio, 1e-9, 1.0 - 1e-15, xtol=1e-15, rtol=1e-14)
 
 
 @dataclass(frozen=True)
@@ -76,13 +86,7 @@ def hertz_ellipse(normal_load: float, A: float, B: float, E: float, nu: float) -
         raise ValueError(f"hertz_ellipse: nu = {nu!r} must be in [0, 0.5]")
     e_star = E / (2.0 * (1.0 - nu * nu))
     small, large = (A, B) if A <= B else (B, A)
-    ratio = large / small
-    if ratio - 1.0 < 1e-12:
-        m = 0.0
-    else:
-        # _hertz_ratio rises monotonically from 1 (m=0) to infinity (m->1).
-        upper = 1.0 - 1e-15
-        m = brentq(lambda mm: _hertz_ratio(mm) - ratio, 1e-9, upper, xtol=1e-15, rtol=1e-14)
+    m = _eccentricity_squared(large / small)
     semi_long = (3.0 * normal_load * _k_minus_e_over_m(m) / (2.0 * math.pi * e_star * small)) ** (1.0 / 3.0)
     semi_short = semi_long * math.sqrt(1.0 - m)
     a, b = (semi_long, semi_short) if A <= B else (semi_short, semi_long)
