@@ -1,0 +1,102 @@
+"""Lateral track (alignment) irregularity: a stationary random profile with a documented PSD.
+
+Shape: the German high-speed alignment spectrum (low-disturbance class), widely used for
+high-speed vehicle simulation (see e.g. X. Lei, *High Speed Railway Track Dynamics*,
+Springer 2017, Ch. 5 "Track Irregularity Power Spectrum and Numerical Simulation")::
+
+    S(Omega) = A_a Omega_c^2 / ((Omega^2 + Omega_r^2) (Omega^2 + Omega_c^2))     [m^2 / (rad/m)]
+
+with ``Omega_c = 0.8246 rad/m``, ``Omega_r = 0.0206 rad/m`` and ``A_a = 2.119e-7 m rad``
+(the values usually quoted). Only the shape matters here: the profile keeps the
+wavelengths between ``wavelength_min`` and ``wavelength_max`` (default 3-80 m, covering
+EN 13848-1's bands D1, 3-25 m, and D2, 25-70 m) and is scaled to the requested rms
+(default 1 mm). It is synthesised by random phases on an FFT grid, so it is
+exactly periodic: the simulator wraps around it without a seam.
+
+The irregularity enters the dynamics only through the wheelset displacement relative to the
+rail (rolling radii, gravitational terms, flange contact; see :mod:`bogie_env.dynamics`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+GERMAN_LOW = {"A_a": 2.119e-7, "Omega_c": 0.8246, "Omega_r": 0.0206}
+
+
+def german_alignment_psd(omega: np.ndarray, A_a: float = GERMAN_LOW["A_a"]) -> np.ndarray:
+    """One-sided alignment PSD (m^2 per rad/m) at spatial frequencies omega (rad/m)."""
+    oc, orr = GERMAN_LOW["Omega_c"], GERMAN_LOW["Omega_r"]
+    omega = np.asarray(omega, dtype=float)
+    return A_a * oc**2 / ((omega**2 + orr**2) * (omega**2 + oc**2))
+
+
+@dataclass(frozen=True)
+class TrackProfile:
+    """A periodic lateral alignment profile sampled every ``dx`` metres."""
+
+    values: np.ndarray  # m
+    dx: float  # m
+
+    @property
+    def length(self) -> float:
+        return self.values.size * self.dx
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(np.mean(self.values**2))) if self.values.size else 0.0
+
+    def at(self, s: np.ndarray | float) -> np.ndarray:
+        """Linear interpolation at distance(s) s (m), periodic."""
+        if self.values.size == 0:
+            return np.zeros_like(np.asarray(s, dtype=float))
+        u = np.asarray(s, dtype=float) / self.dx
+        k = np.floor(u)
+        w = u - k
+        i0 = k.astype(np.int64) % self.values.size
+        return (1 - w) * self.values[i0] + w * self.values[(i0 + 1) % self.values.size]
+
+
+def perfect_track() -> TrackProfile:
+    return TrackProfile(np.zeros(0), 1.0)
+
+
+def alignment_profile(
+    rms: float = 1e-3,
+    wavelength_min: float = 3.0,
+    wavelength_max: float = 80.0,
+    dx: float = 0.25,
+    n_samples: int = 2**20,
+    seed: int = 0,
+) -> TrackProfile:
+    """A random alignment profile with the German spectrum's shape, band-limited and scaled.
+
+    ``rms`` (m) is the target standard deviation; 0 gives a perfect track. The default
+    length, 2^20 samples of 0.25 m, is 262 km: longer than any episode, and periodic.
+    """
+    for name, value in (("rms", rms), ("dx", dx)):
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"alignment_profile: {name} = {value!r} must be finite and >= 0")
+    if rms == 0:
+        return perfect_track()
+    if not (0 < 2 * dx < wavelength_min < wavelength_max):
+        raise ValueError(
+            f"alignment_profile: need 0 < 2*dx < wavelength_min < wavelength_max; got dx={dx}, "
+            f"wavelength_min={wavelength_min}, wavelength_max={wavelength_max}"
+        )
+    n_samples = int(n_samples)
+    if n_samples < 64:
+        raise ValueError(f"alignment_profile: n_samples = {n_samples} must be at least 64")
+    rng = np.random.default_rng(seed)
+    omega = 2 * np.pi * np.fft.rfftfreq(n_samples, d=dx)  # rad/m
+    band = (omega >= 2 * np.pi / wavelength_max) & (omega <= 2 * np.pi / wavelength_min)
+    amplitude = np.zeros_like(omega)
+    d_omega = omega[1] - omega[0]
+    amplitude[band] = np.sqrt(german_alignment_psd(omega[band]) * d_omega)
+    spectrum = amplitude * np.exp(2j * np.pi * rng.random(omega.size))
+    values = np.fft.irfft(spectrum, n=n_samples)
+    values *= rms / np.sqrt(np.mean(values**2))
+    return TrackProfile(values, dx)
