@@ -378,13 +378,21 @@ class BogieModel:
         components lift the wheelset by ``z0 = alpha0 f12 lam^2 / (r0 Kpz)`` (Eq. 48's
         constant term). All lateral, yaw and roll states are zero by mirror symmetry.
         """
+        v = float(check_speed(speed))
+        q = _as_rows(np.zeros(N_INPUTS) if inputs is None else inputs, N_INPUTS, 1, "inputs")[0]
+        yt = np.zeros(N_TRACK)
         x = np.zeros(N_STATES)
+        f = np.empty(N_STATES)
+        jac = np.empty((N_STATES, N_STATES))
         for _ in range(50):
-            f = self.rhs(x, speed, inputs)
+            rhs_single_kernel(x, v, q, yt, self.coefficients, f)
             if np.max(np.abs(f)) < tol:
                 return x
-            step = np.linalg.lstsq(self.jacobian(x, speed, inputs), -f, rcond=None)[0]
+            jacobian_kernel(x, v, q, yt, self.coefficients, jac)
+            step = np.linalg.lstsq(jac, -f, rcond=None)[0]
             x = x + step
+            if not np.all(np.isfinite(x)):
+                break
             if np.max(np.abs(step)) < 1e-16:
                 return x
         raise RuntimeError(f"equilibrium: Newton did not converge at {speed} m/s (residual {np.max(np.abs(f)):.3g})")

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
-from .dynamics import LATERAL_STATES, MAX_SPEED, MIN_SPEED, N_STATES, BogieModel, check_speed
+from .dynamics import LATERAL_STATES, MAX_SPEED, MIN_SPEED, N_INPUTS, N_STATES, BogieModel, check_speed, jacobian_kernel
 from .params import BogieParams
 
 KMH = 3.6  # (km/h) per (m/s)
@@ -44,14 +44,17 @@ class SpeedLinearization:
     equilibrium: np.ndarray
     lateral: tuple[int, ...] = field(default=LATERAL_STATES)
 
+    def __post_init__(self) -> None:
+        idx = np.ix_(self.lateral, self.lateral)
+        object.__setattr__(self, "_lateral_blocks", (self.J0[idx].copy(), self.J1[idx].copy(), self.J2[idx].copy()))
+
     def jacobian(self, speed: float) -> np.ndarray:
         """Full 20 x 20 Jacobian at ``speed`` (m/s)."""
         return self.J0 + self.J1 / speed + self.J2 * speed
 
     def lateral_jacobian(self, speed: float | np.ndarray) -> np.ndarray:
         """The 16 x 16 lateral block at one speed, or stacked (n, 16, 16) for an array."""
-        idx = np.ix_(self.lateral, self.lateral)
-        j0, j1, j2 = self.J0[idx], self.J1[idx], self.J2[idx]
+        j0, j1, j2 = self._lateral_blocks
         v = np.asarray(speed, dtype=float)
         if v.ndim == 0:
             return j0 + j1 / float(v) + j2 * float(v)
@@ -77,7 +80,10 @@ def linearize(model: BogieModel, speeds: tuple[float, float, float] = (40.0, 80.
     """Extract J0, J1, J2 from exact Jacobians at three speeds (m/s)."""
     v = np.asarray(speeds, dtype=float)
     x_eq = model.equilibrium(v[0])
-    jacobians = np.stack([model.jacobian(x_eq, s) for s in v])
+    q, yt = np.zeros(N_INPUTS), np.zeros(2)
+    jacobians = np.empty((3, N_STATES, N_STATES))
+    for k, s in enumerate(v):
+        jacobian_kernel(x_eq, float(s), q, yt, model.coefficients, jacobians[k])
     basis = np.stack([np.ones_like(v), 1.0 / v, v], axis=1)  # J(v) = [1, 1/v, v] . [J0, J1, J2]
     coeffs = np.linalg.solve(basis, jacobians.reshape(3, -1)).reshape(3, N_STATES, N_STATES)
     return SpeedLinearization(coeffs[0], coeffs[1], coeffs[2], x_eq)
