@@ -115,6 +115,205 @@ def cmd_critical_speed(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------
+def parse_scales(text: str) -> list[float]:
+    """'0.5,1,1.5' -> [0.5, 1.0, 1.5]; an empty list or a bad number is an error."""
+    items = [item.strip() for item in text.split(",") if item.strip()]
+    if not items:
+        raise ConfigError(f"--scales {text!r} is empty; give comma-separated factors > 0, e.g. 0.5,1,1.5")
+    try:
+        return [float(item) for item in items]
+    except ValueError:
+        raise ConfigError(f"--scales {text!r}: every entry must be a number, e.g. 0.5,1,1.5") from None
+
+
+def check_range(name: str, low: float, high: float) -> None:
+    if not (np.isfinite(low) and np.isfinite(high) and low < high):
+        raise ConfigError(f"{name}: speed range {low:g}-{high:g} km/h is inverted or empty; the first must be below the second")
+
+
+def _model(args):
+    from .dynamics import BogieModel
+
+    return BogieModel(load_params(args.config, args.overrides))
+
+
+@command("root-locus", "eigenvalues against speed with the hunting mode tracked (Figs. 7, 8, 10)")
+@json_option
+@argument("--out", default=None, help="write the root-locus figures with this file prefix (PNG)")
+@argument("--n-speeds", type=int, default=301)
+@argument("--v-max-kmh", type=float, default=600.0)
+@argument("--v-min-kmh", type=float, default=300.0)
+@bogie_options
+def cmd_root_locus(args: argparse.Namespace) -> int:
+    from .analysis.root_locus import root_locus
+
+    check_range("root-locus", args.v_min_kmh, args.v_max_kmh)
+    locus = root_locus(_model(args), args.v_min_kmh, args.v_max_kmh, args.n_speeds)
+    if args.out:
+        from .analysis import plots
+
+        plots.root_locus_figure(locus, f"{args.out}_root_locus.png")
+        plots.root_locus_figure(locus, f"{args.out}_root_locus_zoom.png", zoom=True)
+        plots.real_parts_figure(locus, f"{args.out}_real_parts.png")
+    if args.json:
+        print_json(locus.to_dict())
+    else:
+        c = locus.critical
+        print(f"hunting mode crosses the imaginary axis at {c.speed_kmh:.1f} km/h, {c.frequency_hz:.3f} Hz")
+        for v, ev in list(zip(locus.speeds_kmh, locus.hunting))[:: max(1, len(locus.speeds) // 10)]:
+            print(f"  {v:7.1f} km/h  {ev.real:+9.4f} {ev.imag:+9.4f}j")
+    return 0
+
+
+@command("ramp", "the paper's speed-ramp simulation with frozen eigenvalues (Figs. 9, 11)")
+@json_option
+@argument("--out", default=None, help="folder for the figures")
+@argument("--track-seed", type=int, default=0)
+@argument("--track-rms", type=float, default=1e-6, help="alignment irregularity rms (m): the noise floor")
+@argument("--offset", type=float, default=1e-3, help="initial lateral offset of wheelset 1 (m)")
+@argument("--accel", type=float, default=0.1, help="ramp rate (m/s^2)")
+@argument("--v-end-kmh", type=float, default=600.0)
+@argument("--v-start-kmh", type=float, default=300.0)
+@bogie_options
+def cmd_ramp(args: argparse.Namespace) -> int:
+    import time
+
+    from .analysis.ramp import speed_ramp
+
+    check_range("ramp", args.v_start_kmh, args.v_end_kmh)
+    model = _model(args)
+    start = time.perf_counter()
+    result = speed_ramp(model, args.v_start_kmh, args.v_end_kmh, args.accel, args.offset, args.track_rms, args.track_seed)
+    payload = result.to_dict()
+    payload["wall_time_s"] = round(time.perf_counter() - start, 3)
+    if args.out:
+        from pathlib import Path
+
+        from .analysis import plots
+
+        out = Path(args.out)
+        plots.ramp_figure(result, out / "ramp_lateral.png")
+        plots.ramp_eigenvalue_figure(result, out / "ramp_frozen_eigenvalues.png")
+        plots.phase_portrait_figure(result, out / "phase_portrait.png")
+    if args.json:
+        print_json(payload)
+    else:
+        for key, value in payload.items():
+            print(f"{key:34s} {value}")
+    return 0
+
+
+@command("bifurcation", "limit cycles, bifurcation diagram and the nonlinear critical speed (ramp-down)")
+@json_option
+@argument("--out", default=None, help="folder for the figures")
+@argument("--rates", default="5,2,1,0.5,0.2,0.1", help="ramp-down rates, km/h per s")
+@argument("--n-speeds", type=int, default=51)
+@argument("--v-max-kmh", type=float, default=550.0)
+@argument("--v-min-kmh", type=float, default=300.0)
+@bogie_options
+def cmd_bifurcation(args: argparse.Namespace) -> int:
+    from .analysis.bifurcation import bifurcation_diagram, nonlinear_critical_speed
+
+    check_range("bifurcation", args.v_min_kmh, args.v_max_kmh)
+    model = _model(args)
+    rates = tuple(parse_scales(args.rates))
+    nonlinear = nonlinear_critical_speed(model, rates)
+    diagram = bifurcation_diagram(model, args.v_min_kmh, args.v_max_kmh, args.n_speeds)
+    payload = nonlinear.to_dict()
+    payload["bifurcation"] = diagram.to_dict()
+    if args.out:
+        from pathlib import Path
+
+        from .analysis import plots
+
+        plots.bifurcation_figure(diagram, nonlinear, Path(args.out) / "bifurcation.png")
+        plots.ramp_down_figure(nonlinear, Path(args.out) / "ramp_down_convergence.png")
+    if args.json:
+        print_json(payload)
+    else:
+        print(f"linear critical speed      : {nonlinear.linear_critical_speed_kmh:.1f} km/h")
+        print(f"nonlinear (fixed-speed fold): {nonlinear.fixed_speed_kmh} km/h (grid {nonlinear.fixed_speed_step_kmh} km/h)")
+        for r, c in zip(nonlinear.rates_kmh_per_s, nonlinear.collapse_kmh):
+            print(f"  ramp-down {r:5g} km/h/s -> collapse at {c if c is None else round(c, 2)} km/h")
+    return 0
+
+
+@command("sensitivity", "critical speed against one or two parameters, or the whole Section-5 study")
+@json_option
+@argument("--fixed-contact", action="store_true", help="keep the nominal creep coefficients (the paper's convention)")
+@argument("--workers", type=int, default=None, help="processes (default: all cores)")
+@argument("--out", default=None, help="folder for CSV/JSON/figures (with --all)")
+@argument("--all", action="store_true", help="the full study: 9 curves and 36 pair grids")
+@argument("--scales", action="append", default=[], help="comma-separated scale factors (once per --param)")
+@argument("--param", action="append", default=[], help="parameter to vary (give twice for a 2-D grid)")
+@bogie_options
+def cmd_sensitivity(args: argparse.Namespace) -> int:
+    import time
+
+    from .analysis import sensitivity as sens
+
+    params = load_params(args.config, args.overrides)
+    progress = not args.json
+    if args.all:
+        from pathlib import Path
+
+        start = time.perf_counter()
+        study = sens.full_study(params, fixed_contact=args.fixed_contact, workers=args.workers, progress=progress)
+        elapsed = time.perf_counter() - start
+        payload = {"n_critical_speeds": study.n_points, "wall_time_s": round(elapsed, 3),
+                   "nominal_critical_speed_kmh": study.nominal_kmh, "table2": study.table2()}  # fmt: skip
+        if args.out:
+            from .analysis import plots
+            from .analysis.report import _curves_csv, _grids_csv, write_text_atomic
+
+            out = Path(args.out)
+            write_text_atomic(out / "sensitivity.json", json.dumps(study.to_dict(), default=float))
+            write_text_atomic(out / "sensitivity_curves.csv", _curves_csv(study.curves))
+            write_text_atomic(out / "sensitivity_grids.csv", _grids_csv(study.grids))
+            plots.curves_figure(study.curves, study.nominal_kmh, out / "sensitivity_curves.png")
+        if args.json:
+            print_json(payload)
+        else:
+            print(f"{study.n_points} critical speeds in {elapsed:.2f} s")
+            for row in study.table2():
+                print(f"  {row['params'][0]:>4s} x {row['params'][1]:<4s} max {row['critical_speed_kmh']} km/h at {row['values']}")
+        return 0
+    if not args.param or len(args.param) > 2:
+        raise ConfigError("give --param NAME once (curve) or twice (2-D grid), or --all")
+    if len(args.scales) > len(args.param):
+        raise ConfigError(f"{len(args.scales)} --scales for {len(args.param)} --param; give at most one per --param")
+    scales = [parse_scales(text) for text in args.scales]
+    if len(args.param) == 1:
+        curve = sens.one_parameter(params, args.param[0], scales[0] if scales else None, args.fixed_contact, args.workers)
+        payload = curve.to_dict()
+    else:
+        if len(scales) == 1:
+            scales = scales * 2
+        pair = (scales[0], scales[1]) if scales else (None, None)
+        grid = sens.two_parameter(params, tuple(args.param), pair, args.fixed_contact, args.workers)
+        payload = grid.to_dict()
+    if args.json:
+        print_json(payload)
+    else:
+        for point in payload["points"]:
+            key = point.get("scale", point.get("scales"))
+            print(f"  scale {key}: {point['critical_speed_kmh']} km/h")
+    return 0
+
+
+@command("reproduce", "regenerate every Section 4-5 figure and a markdown report")
+@argument("--workers", type=int, default=None)
+@argument("--out", required=True, help="output folder")
+@bogie_options
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from .analysis.report import reproduce
+
+    results = reproduce(args.out, load_params(args.config, args.overrides), workers=args.workers)
+    print(f"wrote {args.out}/report.md and figures; timings (s): {results['timings_s']}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bogie", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
