@@ -66,7 +66,7 @@ def main() -> None:
         u, power, status = np.zeros((n, 4)), np.zeros((n, 4)), np.zeros(n, np.int64)
 
         def step():
-            advance_batch_kernel(xs, vs, acc, dist, 0.01, 3, z, z, z, z, np.zeros(4), np.zeros(0), 1.0, p, u, power, status)
+            advance_batch_kernel(xs, vs, acc, dist, 0.01, 3, z, z, z, z, np.zeros(4), np.full(4, np.inf), np.zeros(0), 1.0, p, u, power, status)
 
         step()
         t = best_time(step, 2000 if n == 1 else 50, args.repeats)

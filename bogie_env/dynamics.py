@@ -97,30 +97,100 @@ def coefficient_vector(params: BogieParams, creep: CreepCoefficients | None = No
 # complex-step Jacobian runs the very same code; branches compare real parts.
 # ---------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
-def _rhs_row(x, V, Q, yt, p, out):
-    mw = p[P_MW]
+def _wheel_rail_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, p):
+    """Wheel-rail forces on one wheelset, summed over both wheels, in track axes.
+
+    Returns (lateral force, vertical force, yaw moment, roll moment): creep forces and spin
+    moments (Eqs. 16-30), normal forces (Eqs. 37-39) with the contact positions (Eqs. 31-36),
+    and the flange force (Eq. 46). The lateral force is EN 14363's sum of guiding forces.
+    ``y_rel`` is the displacement relative to the track.
+    """
     e = p[P_E]
     r0 = p[P_R0]
     lam = p[P_LAM]
-    W = p[P_WPA]
-    L1 = p[P_L1]
-    L2 = p[P_L2]
-    b1sq = p[P_B1] * p[P_B1]
     f11 = p[P_F11]
     f12 = p[P_F12]
     f22 = p[P_F22]
     f33 = p[P_F33]
+    half_w = 0.5 * p[P_WPA]
+    inv_mu_n = 1.0 / (p[P_MU] * half_w)  # Eq. (28), N = Wpa/2 per wheel (Eq. 37)
+    # Eq. (15): conical wheels, contact angle lam, rolling radii.
+    r_left = r0 + lam * y_rel
+    r_right = r0 - lam * y_rel
+    # Creepages (after Eq. 30).
+    xi_x_left = -lam * y_rel / r0 - e * dpsi * inv_v
+    xi_x_right = lam * y_rel / r0 + e * dpsi * inv_v
+    xi_y_left = (dy + r_left * dphi) * inv_v - psi
+    xi_y_right = (dy + r_right * dphi) * inv_v - psi
+    xi_sp_left = dpsi * inv_v - lam / r0
+    xi_sp_right = dpsi * inv_v + lam / r0
+    # Kalker linear creep in the contact frame (Eqs. 29-30 and the spin moment).
+    fx_left = -f33 * xi_x_left
+    fy_left = -f11 * xi_y_left - f12 * xi_sp_left
+    mz_left = f12 * xi_y_left - f22 * xi_sp_left
+    fx_right = -f33 * xi_x_right
+    fy_right = -f11 * xi_y_right - f12 * xi_sp_right
+    mz_right = f12 * xi_y_right - f22 * xi_sp_right
+    # Saturation, one factor per wheelset (Eqs. 26-28).
+    beta_left = np.sqrt(fx_left * fx_left + fy_left * fy_left) * inv_mu_n
+    beta_right = np.sqrt(fx_right * fx_right + fy_right * fy_right) * inv_mu_n
+    alpha = _saturation(0.5 * (beta_left + beta_right))
+    fx_left = alpha * fx_left
+    fy_left = alpha * fy_left
+    mz_left = alpha * mz_left
+    fx_right = alpha * fx_right
+    fy_right = alpha * fy_right
+    mz_right = alpha * mz_right
+    # Creep forces and moments in track axes (Eqs. 16-25).
+    incl_left = lam + phi  # contact-plane inclination, left
+    incl_right = lam - phi
+    Fx_l = fx_left - fy_left * psi
+    Fy_l = fx_left * psi + fy_left
+    Fz_l = fy_left * incl_left
+    Mx_l = mz_left * incl_left * psi
+    Fx_r = fx_right - fy_right * psi
+    Fy_r = fx_right * psi + fy_right
+    Fz_r = -fy_right * incl_right
+    Mx_r = -mz_right * incl_right * psi
+    # Normal forces (Eqs. 37-39); their vertical components cancel the axle load in Eq. (4).
+    Ny_l = -half_w * incl_left
+    Ny_r = half_w * incl_right
+    # Contact-point positions (Eqs. 31-36).
+    Rx_l = -e * psi
+    Ry_l = e + r_left * phi
+    Rz_l = e * phi - r_left
+    Rx_r = e * psi
+    Ry_r = -e + r_right * phi
+    Rz_r = -e * phi - r_right
+    flange = _flange(y_rel, p[P_DELTA], p[P_KR])  # Eq. (46)
+    lateral = Fy_l + Fy_r + Ny_l + Ny_r - flange
+    vertical = Fz_l + Fz_r
+    yaw = (Rx_r * Fy_r - Ry_r * Fx_r) + (Rx_l * Fy_l - Ry_l * Fx_l) + (Rx_r * Ny_r + Rx_l * Ny_l) + mz_left + mz_right
+    roll = (
+        (Ry_r * Fz_r - Rz_r * Fy_r)
+        + (Ry_l * Fz_l - Rz_l * Fy_l)
+        + (Ry_l * half_w - Rz_l * Ny_l)
+        + (Ry_r * half_w - Rz_r * Ny_r)
+        + Mx_l
+        + Mx_r
+    )
+    return lateral, vertical, yaw, roll
+
+
+@njit(cache=True, inline="always")
+def _rhs_row(x, V, Q, yt, p, out):
+    mw = p[P_MW]
+    L1 = p[P_L1]
+    L2 = p[P_L2]
+    b1sq = p[P_B1] * p[P_B1]
     Kpy2 = 2.0 * p[P_KPY]
     Cpy2 = 2.0 * p[P_CPY]
     yaw_k = 2.0 * p[P_KPX] * b1sq
     yaw_c = 2.0 * p[P_CPX] * b1sq
     roll_k = 2.0 * p[P_KPZ] * b1sq
     roll_c = 2.0 * p[P_CPZ] * b1sq
-    half_w = 0.5 * W
-    inv_mu_n = 1.0 / (p[P_MU] * half_w)  # Eq. (28), N = Wpa/2 per wheel (Eq. 37)
     inv_v = 1.0 / V
-    spin_rate = V / r0  # wheelset spin, rad/s
-    gyro = p[P_IWY] * spin_rate
+    gyro = p[P_IWY] * V / p[P_R0]  # wheelset spin V/r0 times its pitch inertia
     yb = x[16]
     dyb = x[17]
     psib = x[18]
@@ -129,100 +199,31 @@ def _rhs_row(x, V, Q, yt, p, out):
     frame_moment = 0.0 * yb
     for i in range(2):
         o = 8 * i
-        y = x[o]
         dy = x[o + 1]
-        z = x[o + 2]
-        dz = x[o + 3]
-        psi = x[o + 4]
         dpsi = x[o + 5]
-        phi = x[o + 6]
         dphi = x[o + 7]
         side = 1.0 - 2.0 * i  # +1 front (x = +L1), -1 rear
-        y_rel = y - yt[i]
-        # Eq. (15): conical wheels, contact angle lam, rolling radii.
-        r_left = r0 + lam * y_rel
-        r_right = r0 - lam * y_rel
-        # Creepages (after Eq. 30).
-        xi_x_left = -lam * y_rel / r0 - e * dpsi * inv_v
-        xi_x_right = lam * y_rel / r0 + e * dpsi * inv_v
-        xi_y_left = (dy + r_left * dphi) * inv_v - psi
-        xi_y_right = (dy + r_right * dphi) * inv_v - psi
-        xi_sp_left = dpsi * inv_v - lam / r0
-        xi_sp_right = dpsi * inv_v + lam / r0
-        # Kalker linear creep in the contact frame (Eqs. 29-30 and the spin moment).
-        fx_left = -f33 * xi_x_left
-        fy_left = -f11 * xi_y_left - f12 * xi_sp_left
-        mz_left = f12 * xi_y_left - f22 * xi_sp_left
-        fx_right = -f33 * xi_x_right
-        fy_right = -f11 * xi_y_right - f12 * xi_sp_right
-        mz_right = f12 * xi_y_right - f22 * xi_sp_right
-        # Saturation, one factor per wheelset (Eqs. 26-28).
-        beta_left = np.sqrt(fx_left * fx_left + fy_left * fy_left) * inv_mu_n
-        beta_right = np.sqrt(fx_right * fx_right + fy_right * fy_right) * inv_mu_n
-        alpha = _saturation(0.5 * (beta_left + beta_right))
-        fx_left = alpha * fx_left
-        fy_left = alpha * fy_left
-        mz_left = alpha * mz_left
-        fx_right = alpha * fx_right
-        fy_right = alpha * fy_right
-        mz_right = alpha * mz_right
-        # Creep forces and moments in track axes (Eqs. 16-25).
-        incl_left = lam + phi  # contact-plane inclination, left
-        incl_right = lam - phi
-        Fx_l = fx_left - fy_left * psi
-        Fy_l = fx_left * psi + fy_left
-        Fz_l = fy_left * incl_left
-        Mx_l = mz_left * incl_left * psi
-        Fx_r = fx_right - fy_right * psi
-        Fy_r = fx_right * psi + fy_right
-        Fz_r = -fy_right * incl_right
-        Mx_r = -mz_right * incl_right * psi
-        # Normal forces (Eqs. 37-39).
-        Ny_l = -half_w * incl_left
-        Ny_r = half_w * incl_right
-        # Contact-point positions (Eqs. 31-36).
-        Rx_l = -e * psi
-        Ry_l = e + r_left * phi
-        Rz_l = e * phi - r_left
-        Rx_r = e * psi
-        Ry_r = -e + r_right * phi
-        Rz_r = -e * phi - r_right
+        lateral, vertical, yaw, roll = _wheel_rail_forces(x[o] - yt[i], dy, x[o + 4], dpsi, x[o + 6], dphi, inv_v, p)
         # Suspension (Eqs. 40-43, corrected).
-        spring_y = Kpy2 * (y - yb - side * L1 * psib)
+        spring_y = Kpy2 * (x[o] - yb - side * L1 * psib)
         damper_y = Cpy2 * (dy - dyb - side * L2 * dpsib)
-        yaw_moment = yaw_k * (psi - psib) + yaw_c * (dpsi - dpsib)
-        flange = _flange(y_rel, p[P_DELTA], p[P_KR])
+        yaw_moment = yaw_k * (x[o + 4] - psib) + yaw_c * (dpsi - dpsib)
         # Eq. (3) lateral
         out[o] = dy
-        out[o + 1] = (Fy_l + Fy_r + Ny_l + Ny_r - spring_y - damper_y - flange) / mw
-        # Eq. (4) vertical (the normal forces' vertical components cancel the axle load)
-        out[o + 2] = dz
-        out[o + 3] = (Fz_l + Fz_r - 2.0 * p[P_KPZ] * z - 2.0 * p[P_CPZ] * dz) / mw
-        # Eq. (5) yaw: gyroscopic, creep-force moments, normal-force moment, spin moments
-        m_yaw = (
-            -gyro * dphi
-            + (Rx_r * Fy_r - Ry_r * Fx_r)
-            + (Rx_l * Fy_l - Ry_l * Fx_l)
-            + (Rx_r * Ny_r + Rx_l * Ny_l)
-            + mz_left
-            + mz_right
-            - yaw_moment
-            + Q[2 + i]
-        )
+        out[o + 1] = (lateral - spring_y - damper_y) / mw
+        # Eq. (4) vertical
+        out[o + 2] = x[o + 3]
+        out[o + 3] = (vertical - 2.0 * p[P_KPZ] * x[o + 2] - 2.0 * p[P_CPZ] * x[o + 3]) / mw
+        # Eq. (5) yaw: gyroscopic coupling, wheel-rail moments, primary suspension, input
         out[o + 4] = dpsi
-        out[o + 5] = m_yaw / p[P_IWZ]
-        # Eq. (6) roll
+        out[o + 5] = (-gyro * dphi + yaw - yaw_moment + Q[2 + i]) / p[P_IWZ]
+        # Eq. (6) roll, with the secondary-suspension moment of Eq. (43)
         m_roll = (
             gyro * dpsi
-            + (Ry_r * Fz_r - Rz_r * Fy_r)
-            + (Ry_l * Fz_l - Rz_l * Fy_l)
-            + (Ry_l * half_w - Rz_l * Ny_l)
-            + (Ry_r * half_w - Rz_r * Ny_r)
-            + Mx_l
-            + Mx_r
+            + roll
             - 2.0 * p[P_KSY] * p[P_H2] * yb
             - 2.0 * p[P_CSY] * p[P_H1] * dyb
-            - roll_k * phi
+            - roll_k * x[o + 6]
             - roll_c * dphi
         )
         out[o + 6] = dphi
@@ -240,6 +241,22 @@ def _rhs_row(x, V, Q, yt, p, out):
         - 2.0 * p[P_CSX] * p[P_B3] * p[P_B3] * dpsib
         + Q[1]
     ) / p[P_IBZ]
+
+
+@njit(cache=True, inline="always")
+def _guiding_forces_row(x, V, yt, p, out):
+    """EN 14363's sum of guiding forces, the lateral wheel-rail force on each wheelset (N)."""
+    inv_v = 1.0 / V
+    for i in range(2):
+        o = 8 * i
+        out[i] = _wheel_rail_forces(x[o] - yt[i], x[o + 1], x[o + 4], x[o + 5], x[o + 6], x[o + 7], inv_v, p)[0]
+
+
+@njit(cache=True)
+def guiding_forces_kernel(x, V, yt, p, out):
+    """Sum of guiding forces for N bogies: x (N, 20), V (N,), yt (N, 2), out (N, 2)."""
+    for n in range(x.shape[0]):
+        _guiding_forces_row(x[n], V[n], yt[n], p, out[n])
 
 
 @njit(cache=True)

@@ -6,11 +6,12 @@ RK4 substeps, entirely inside compiled code. Within the interval:
 - the speed ramps linearly, ``V(t) = V0 + a t`` (the paper's speed-ramp runs, Section 4);
 - the distance travelled ``s(t) = s0 + V0 t + a t^2 / 2`` places each wheelset on a
   shared, periodic track-alignment profile (``x = s + L1`` front, ``s - L1`` rear);
-- each of the 4 actuator channels applies ``u_k = F_k(t) - c_k(t) v_k(x)``: a force
+- each of the 4 actuator channels applies ``u_k = sat(F_k(t) - c_k(t) v_k(x))``: a force
   ``F_k`` and a damping coefficient ``c_k`` that both follow a first-order lag from their
   start values to their targets exactly (``exp(-t/tau)``), and ``v_k`` the channel's
-  relative velocity (frame lateral, frame yaw, wheelset-minus-frame yaw 1 and 2). Force
-  actuators use ``c = 0``; semi-active dampers use ``F = 0`` and ``c >= 0`` (dissipative).
+  relative velocity (frame lateral, frame yaw, wheelset-minus-frame yaw 1 and 2), saturated
+  at ``+-u_max``. Force actuators use ``c = 0``; semi-active dampers use ``F = 0`` and
+  ``c >= 0``; saturating a damper's force keeps its sign, so it still only dissipates.
 
 The generalised forces handed to the dynamics are ``Q = (u0, u1 - u2 - u3, u2, u3)``:
 wheelset steering torques react on the frame.
@@ -63,13 +64,20 @@ def _channel_velocity(x, k):
 
 
 @njit(cache=True, inline="always")
-def _stage_derivative(x, t, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, out):
+def _channel_output(x, k, t, f_start, f_target, c_start, c_target, decay_rate, u_max):
+    """Channel k's force at time t: lagged force minus lagged damping times velocity, saturated."""
+    w = math.exp(-decay_rate[k] * t)
+    force = f_target[k] + (f_start[k] - f_target[k]) * w
+    damping = c_target[k] + (c_start[k] - c_target[k]) * w
+    value = force - damping * _channel_velocity(x, k)
+    return min(max(value, -u_max[k]), u_max[k])
+
+
+@njit(cache=True, inline="always")
+def _stage_derivative(x, t, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, out):
     """dx/dt at time t inside the interval; also leaves the channel outputs in ``u``."""
     for k in range(N_INPUTS):
-        w = math.exp(-decay_rate[k] * t)
-        force = f_target[k] + (f_start[k] - f_target[k]) * w
-        damping = c_target[k] + (c_start[k] - c_target[k]) * w
-        u[k] = force - damping * _channel_velocity(x, k)
+        u[k] = _channel_output(x, k, t, f_start, f_target, c_start, c_target, decay_rate, u_max)
     q[0] = u[0]
     q[1] = u[1] - u[2] - u[3]
     q[2] = u[2]
@@ -82,7 +90,7 @@ def _stage_derivative(x, t, V0, accel, s0, f_start, f_target, c_start, c_target,
 
 
 @njit(cache=True, inline="always")
-def _advance_row(x, V0, accel, s0, dt, n_sub, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, u_end, power_mean):
+def _advance_row(x, V0, accel, s0, dt, n_sub, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, u_end, power_mean):
     """Advance one bogie by dt in n_sub RK4 substeps. Returns a status code."""
     h = dt / n_sub
     k1 = np.empty(N_STATES)
@@ -97,22 +105,22 @@ def _advance_row(x, V0, accel, s0, dt, n_sub, f_start, f_target, c_start, c_targ
         power_mean[k] = 0.0
     for j in range(n_sub):
         t = j * h
-        _stage_derivative(x, t, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, k1)
+        _stage_derivative(x, t, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, k1)
         for k in range(N_INPUTS):
             power_mean[k] += u[k] * _channel_velocity(x, k) / 6.0
         for i in range(N_STATES):
             xs[i] = x[i] + 0.5 * h * k1[i]
-        _stage_derivative(xs, t + 0.5 * h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, k2)
+        _stage_derivative(xs, t + 0.5 * h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, k2)
         for k in range(N_INPUTS):
             power_mean[k] += u[k] * _channel_velocity(xs, k) / 3.0
         for i in range(N_STATES):
             xs[i] = x[i] + 0.5 * h * k2[i]
-        _stage_derivative(xs, t + 0.5 * h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, k3)
+        _stage_derivative(xs, t + 0.5 * h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, k3)
         for k in range(N_INPUTS):
             power_mean[k] += u[k] * _channel_velocity(xs, k) / 3.0
         for i in range(N_STATES):
             xs[i] = x[i] + h * k3[i]
-        _stage_derivative(xs, t + h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, q, yt, u, k4)
+        _stage_derivative(xs, t + h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, k4)
         for k in range(N_INPUTS):
             power_mean[k] += u[k] * _channel_velocity(xs, k) / 6.0
         for i in range(N_STATES):
@@ -121,10 +129,7 @@ def _advance_row(x, V0, accel, s0, dt, n_sub, f_start, f_target, c_start, c_targ
         power_mean[k] /= n_sub
     # channel outputs at the end of the interval
     for k in range(N_INPUTS):
-        w = math.exp(-decay_rate[k] * dt)
-        force = f_target[k] + (f_start[k] - f_target[k]) * w
-        damping = c_target[k] + (c_start[k] - c_target[k]) * w
-        u_end[k] = force - damping * _channel_velocity(x, k)
+        u_end[k] = _channel_output(x, k, dt, f_start, f_target, c_start, c_target, decay_rate, u_max)
     for i in range(N_STATES):
         if not math.isfinite(x[i]):
             return STATUS_NONFINITE
@@ -132,17 +137,18 @@ def _advance_row(x, V0, accel, s0, dt, n_sub, f_start, f_target, c_start, c_targ
 
 
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
-def advance_batch_kernel(x, V, accel, s, dt, n_sub, f_start, f_target, c_start, c_target, decay_rate, profile, inv_dx, p, u_end, power_mean, status):
+def advance_batch_kernel(x, V, accel, s, dt, n_sub, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, u_end, power_mean, status):
     """Advance N bogies in place by dt; V and s advance too. Rows run in parallel.
 
     Shapes: x (N, 20); V, accel, s, status (N,); f_start, f_target, c_start, c_target,
-    u_end, power_mean (N, 4); decay_rate (4,) = 1/tau per channel (0: no lag);
+    u_end, power_mean (N, 4); decay_rate (4,) = 1/tau per channel (0: no lag); u_max (4,)
+    saturation of each channel's output (inf: none);
     profile (M,) shared periodic track alignment (M = 0: perfect track).
     """
     for n in prange(x.shape[0]):
         status[n] = _advance_row(
             x[n], V[n], accel[n], s[n], dt, n_sub, f_start[n], f_target[n], c_start[n], c_target[n],
-            decay_rate, profile, inv_dx, p, u_end[n], power_mean[n],
+            decay_rate, u_max, profile, inv_dx, p, u_end[n], power_mean[n],
         )  # fmt: skip
         s[n] += V[n] * dt + 0.5 * accel[n] * dt * dt
         V[n] += accel[n] * dt
@@ -156,6 +162,7 @@ def simulate_ramp_kernel(x, V, accel, dt, n_sub, n_steps, record_every, profile,
     and a status code (non-finite state stops the run).
     """
     zeros = np.zeros(N_INPUTS)
+    unbounded = np.full(N_INPUTS, np.inf)
     u_end = np.empty(N_INPUTS)
     power = np.empty(N_INPUTS)
     n_rec = 0
@@ -168,7 +175,7 @@ def simulate_ramp_kernel(x, V, accel, dt, n_sub, n_steps, record_every, profile,
         a = accel
         if V + a * dt > v_ceiling or V + a * dt < v_floor:
             a = 0.0
-        code = _advance_row(x, V, a, s, dt, n_sub, zeros, zeros, zeros, zeros, zeros, profile, inv_dx, p, u_end, power)
+        code = _advance_row(x, V, a, s, dt, n_sub, zeros, zeros, zeros, zeros, zeros, unbounded, profile, inv_dx, p, u_end, power)
         s += V * dt + 0.5 * a * dt * dt
         V += a * dt
         if code != STATUS_OK:
@@ -190,8 +197,12 @@ def rk4_amplification(z: np.ndarray) -> np.ndarray:
     return np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
 
 
-def spectrum(model: BogieModel, speeds: np.ndarray, flange: bool = True) -> np.ndarray:
-    """Eigenvalues (n_speeds, 20 or 40) at equilibrium and, with ``flange``, in flange contact."""
+def spectrum(model: BogieModel, speeds: np.ndarray, flange: bool = True, extra_jacobian: np.ndarray | None = None) -> np.ndarray:
+    """Eigenvalues (n_speeds, 20 or 40) at equilibrium and, with ``flange``, in flange contact.
+
+    ``extra_jacobian`` (20 x 20) is added to every Jacobian: e.g. the damping of semi-active
+    actuators at their largest setting, which makes the system stiffer.
+    """
     x_eq = model.equilibrium(float(np.max(speeds)))
     states = [x_eq]
     if flange:
@@ -200,7 +211,8 @@ def spectrum(model: BogieModel, speeds: np.ndarray, flange: bool = True) -> np.n
         states.append(engaged)
     rows = []
     for v in np.atleast_1d(speeds):
-        rows.append(np.concatenate([np.linalg.eigvals(model.jacobian(xx, float(v))) for xx in states]))
+        extra = 0.0 if extra_jacobian is None else extra_jacobian
+        rows.append(np.concatenate([np.linalg.eigvals(model.jacobian(xx, float(v)) + extra) for xx in states]))
     return np.array(rows)
 
 
@@ -215,7 +227,13 @@ class StepChoice:
 
 
 def stable_substep(
-    model: BogieModel, v_min: float, v_max: float, dt: float, margin: float = 1.25, n_speeds: int = 7
+    model: BogieModel,
+    v_min: float,
+    v_max: float,
+    dt: float,
+    margin: float = 1.25,
+    n_speeds: int = 7,
+    extra_jacobian: np.ndarray | None = None,
 ) -> StepChoice:
     """The fewest RK4 substeps per ``dt`` that keep every eigenvalue stable with a margin.
 
@@ -226,7 +244,7 @@ def stable_substep(
     check_speed(v_min, "v_min")
     check_speed(v_max, "v_max")
     speeds = np.linspace(v_min, v_max, n_speeds)
-    eigenvalues = spectrum(model, speeds).ravel()
+    eigenvalues = spectrum(model, speeds, extra_jacobian=extra_jacobian).ravel()
     for n_sub in range(1, 10_000):
         h = dt / n_sub
         z = margin * h * eigenvalues
@@ -239,6 +257,21 @@ def stable_substep(
 # ---------------------------------------------------------------------------------
 # Python front-ends
 # ---------------------------------------------------------------------------------
+
+
+def channel_damping_jacobian(model: BogieModel, damping: np.ndarray) -> np.ndarray:
+    """Jacobian of the channels' damping forces, -B G diag(c) V: what viscous actuators add.
+
+    ``damping`` (4,) per channel; V maps states to channel velocities and G maps channel
+    forces to the generalised forces (wheelset torques react on the frame).
+    """
+    velocity = np.zeros((N_INPUTS, N_STATES))
+    velocity[0, 17] = 1.0
+    velocity[1, 19] = 1.0
+    velocity[2, 5], velocity[2, 19] = 1.0, -1.0
+    velocity[3, 13], velocity[3, 19] = 1.0, -1.0
+    to_generalised = np.array([[1, 0, 0, 0], [0, 1, -1, -1], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+    return -model.input_matrix() @ to_generalised @ np.diag(damping) @ velocity
 
 
 def empty_profile() -> np.ndarray:

@@ -61,6 +61,7 @@ class BatchSimulator:
         if np.any(~np.isfinite(tau)) or np.any(tau < 0):
             raise ValueError(f"BatchSimulator: lag_tau = {lag_tau!r} must be finite and >= 0")
         self.decay_rate = np.where(tau > 0, 1.0 / np.maximum(tau, 1e-300), 0.0)
+        self.u_max = np.full(N_INPUTS, np.inf)
         self._inv_dx = 1.0 / self.track.dx
         self.x = np.zeros((self.n, N_STATES))
         self.speed = np.full(self.n, lo)
@@ -105,7 +106,7 @@ class BatchSimulator:
         c_target = self._zeros if damping_target is None else np.ascontiguousarray(damping_target, dtype=np.float64)
         advance_batch_kernel(
             self.x, self.speed, self.accel, self.distance, self.dt, self.n_sub,
-            self.force, f_target, self.damping, c_target, self.decay_rate,
+            self.force, f_target, self.damping, c_target, self.decay_rate, self.u_max,
             self.track.values, self._inv_dx, self.model.coefficients,
             self.channel_output, self.channel_power, self.status,
         )  # fmt: skip

@@ -29,7 +29,7 @@ def run_fixed(model, x0, speed, t_end, dt, n_sub, accel=0.0, n_rows=1, f_start=N
     decay = np.zeros(4) if decay is None else decay
     u, power, status = np.zeros((n_rows, 4)), np.zeros((n_rows, 4)), np.zeros(n_rows, np.int64)
     for _ in range(int(round(t_end / dt))):
-        advance_batch_kernel(x, v, a, s, dt, n_sub, f_start, f_target, c_start, c_target, decay,
+        advance_batch_kernel(x, v, a, s, dt, n_sub, f_start, f_target, c_start, c_target, decay, np.full(4, np.inf),
                              np.zeros(0), 1.0, model.coefficients, u, power, status)
     return x, v, s, u, power, status
 

@@ -70,7 +70,7 @@ def _envelope_growth(model, speed, duration=24.0, amplitude=1e-7):
     v, a, s = np.array([speed]), np.zeros(1), np.zeros(1)
     zeros, u, power, status = np.zeros((1, 4)), np.zeros((1, 4)), np.zeros((1, 4)), np.zeros(1, np.int64)
     for k in range(n_steps):
-        advance_batch_kernel(x, v, a, s, 0.01, choice.n_sub, zeros, zeros, zeros, zeros, np.zeros(4),
+        advance_batch_kernel(x, v, a, s, 0.01, choice.n_sub, zeros, zeros, zeros, zeros, np.zeros(4), np.full(4, np.inf),
                              np.zeros(0), 1.0, model.coefficients, u, power, status)
         y1[k] = x[0, state_index("y1")]
     t = 0.01 * np.arange(1, n_steps + 1)
