@@ -220,13 +220,20 @@ class HuntingTask:
         return self.scal[:, K.S_SPEED] * KMH
 
     def max_episode_steps(self) -> int:
-        """Steps to ramp from the lowest start to the highest end at the slowest rate, +10 %."""
-        sp = self.config["speed"]
+        return self.max_steps_for(self.config)
+
+    @staticmethod
+    def max_steps_for(config: Mapping[str, Any] | None) -> int:
+        """Steps to ramp from the lowest start to the highest end at the slowest rate, +10 %
+        (100,000 when a fixed-speed run has no natural end)."""
+        c = make_config(config)
+        sp = c["speed"]
         accel = min([sp["accel"]] + ([sp["accel_range"][0]] if sp["accel_range"] else []))
-        lo, hi = self.speed_limits()
+        lo = min([sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else []))
+        hi = max([sp["end_kmh"]] + ([sp["end_kmh_range"][1]] if sp["end_kmh_range"] else []))
         if accel <= 0:
             return 100_000
-        return int(math.ceil((hi - lo) / accel / self.config["dt"] * 1.1)) + 10
+        return int(math.ceil((hi - lo) / KMH / accel / c["dt"] * 1.1)) + 10
 
     def delta(self, row: int = 0) -> float:
         return float(self.P[row, P_DELTA])

@@ -1,0 +1,190 @@
+"""``BogieHuntingEnv``: one bogie, speed ramping up, actuators against hunting."""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import gymnasium as gym
+import numpy as np
+
+from . import kernel as K
+from .config import CHANNELS
+from .core import HuntingTask
+
+
+def info_from_row(task: HuntingTask, row: int) -> dict[str, Any]:
+    """The step info of one environment (see the class docstring)."""
+    info = task.info[row]
+    onset = float(info[K.I_ONSET_KMH])
+    return {
+        "speed_kmh": float(info[K.I_SPEED_KMH]),
+        "hunting": bool(task.flags[row, 2]),
+        "onset_speed_kmh": None if np.isnan(onset) else onset,
+        "lateral_rms_m": info[K.I_RMS1 : K.I_RMS2 + 1].copy(),
+        "actuator_force": info[K.I_FORCE : K.I_FORCE + 4].copy(),
+        "actuator_power": info[K.I_POWER : K.I_POWER + 4].copy(),
+        "blowup": bool(task.flags[row, 3]),
+    }
+
+
+class BogieHuntingEnv(gym.Env):
+    """
+    ## Description
+
+    A high-speed railway bogie runs on straight track while its speed ramps up, by default from
+    300 to 600 km/h at 1 m/s². Above a critical speed a passive bogie starts *hunting*: a
+    self-excited lateral and yaw oscillation of the wheelsets and frame that grows until the
+    wheel flanges hit the rails. The agent drives actuators on the bogie to keep it stable to
+    as high a speed as possible. The physics is the nonlinear 10-DOF bogie of Bustos et al.,
+    "On the nonlinear hunting stability of a high-speed train bogie", *Nonlinear Dynamics*
+    (2022) (`docs/model.md`), whose passive linear critical speed here is 358.6 km/h.
+
+    ## Action Space
+
+    `Box(-1, 1, (n,), float32)`, one entry per active actuator channel, in the order
+    frame lateral, frame yaw, wheelset 1 yaw, wheelset 2 yaw (only the channels whose mode is
+    not `"off"`). Out-of-range actions are clipped to [-1, 1]; NaN, inf or a wrong shape raise
+    `ValueError`. Each channel (`config["actuators"][name]`) is either:
+
+    - `"force"`: an actuator of force (N) or torque (N m) `a * max_force`;
+    - `"semi_active"`: a damper whose coefficient is `c_min + (a + 1)/2 * (c_max - c_min)`; it
+      only dissipates;
+    - `"off"`.
+
+    Every channel saturates at `max_force`, follows its command through a first-order lag of
+    `bandwidth_hz`, and can delay it by `delay_steps` steps. Defaults: 10 kN frame lateral,
+    15 kN m frame yaw, 15 kN m per wheelset (acting between the wheelset and the frame), 10 Hz,
+    no delay. The `Bogie/HuntingPassive-v0` variant has no actuators; its action space is
+    `Box(-1, 1, (1,))` and the action is ignored.
+
+    ## Observation Space
+
+    `Box(-10, 10, (m,), float32)`, clipped to its bounds. With `observation.type = "sensors"`
+    (default), what an on-board system can measure:
+
+    | index | observation | scale (value that reads 1) |
+    |---|---|---|
+    | 0 | frame lateral acceleration | 5 m/s² |
+    | 1 | frame yaw rate | 0.1 rad/s |
+    | 2, 3 | lateral displacement of wheelset 1, 2 relative to the frame (at the axle boxes) | flange clearance δ = 9 mm |
+    | 4, 5 | yaw of wheelset 1, 2 relative to the frame | 5 mrad |
+    | 6 | speed | (V − 450 km/h) / 150 km/h |
+    | 7… | each active actuator's force / its `max_force` (if `include_actuators`) | 1 |
+
+    With `observation.type = "state"`: the 20 states of the model (`bogie_env.STATE_NAMES`) scaled
+    to O(1), then the speed and actuator forces as above. `observation.noise` adds Gaussian noise
+    of that standard deviation (in scaled units) to every entry.
+
+    ## Rewards
+
+    Per step, `progress * (1 - penalty)`, where `progress` is the speed gained in the step in
+    km/h (plus `time_weight * dt`, default 0) and
+    `penalty = w_lat * mean_i min((y_rel,i/δ)², 1) + w_yaw * mean_i min((ψ_i − ψ_b)²/ψ_ref², 1)
+    + w_effort * mean_k min((u_k/max_k)², 1)` with defaults 0.5, 0.2, 0.2 (their sum must stay
+    below 1). So every step alive pays, and the return grows with the speed reached without
+    hunting: a passive bogie that hunts at 360 km/h collects about 60 (x penalties) on the
+    default ramp, one that reaches 600 km/h up to 300. `y_rel,i` is wheelset i's displacement
+    relative to the rail; a blow-up step pays 0.
+
+    ## Starting State
+
+    The bogie starts at the equilibrium at the start speed with random lateral offsets of the
+    wheelsets and frame (standard deviation `initial_perturbation`, 1 mm) and yaw angles
+    (1 mm / 2 L1), at a random position along a periodic 262-km track-alignment profile.
+
+    ## Episode End
+
+    - Termination: hunting is established: the exponentially weighted rms (over `window_m`,
+      100 m of track) of either wheelset's displacement relative to the rail exceeds
+      `rms_fraction * δ` (0.6 × 9 mm); or the numerics blow up (non-finite state, or a
+      displacement beyond `blowup_m` = 0.1 m).
+    - Truncation: the speed reaches the end speed, or `max_episode_steps` (set by the
+      registered ids to the ramp's length plus 10 %).
+
+    ## Info
+
+    `speed_kmh`, `hunting` (bool), `onset_speed_kmh` (None until hunting; NaN in the vector
+    envs' arrays), `lateral_rms_m` (2,),
+    `actuator_force` (4,) in N / N m and `actuator_power` (4,) in W (mechanical power delivered
+    by each channel, mean over the step; negative = dissipated), `blowup` (bool).
+
+    ## Arguments
+
+    ```python
+    import gymnasium as gym
+    import bogie_env
+    env = gym.make("Bogie/Hunting-v0", config={"speed": {"accel": 0.5}}, render_mode="rgb_array")
+    ```
+    `config` is a mapping or a YAML path merged into `bogie_env.envs.config.default_config()`
+    (unknown keys are errors); keyword arguments override top-level keys. Important keys:
+    `bogie` (preset YAML), `bogie_overrides`, `dt` (0.01 s), `speed` (start, end, accel and
+    optional per-episode ranges), `track` (alignment rms 0.5 mm over 3-80 m, German high-speed
+    spectrum shape), `randomize` (per-episode parameter scale ranges, e.g.
+    `{"Csy": [0.5, 1.0]}`), `actuators`, `observation`, `reward`, `hunting`.
+    `reset(options=...)` accepts `start_kmh`, `end_kmh`, `accel` and `params` (scale factors).
+
+    ## Version History
+
+    - v0: initial version.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+
+    def __init__(
+        self,
+        config: Mapping[str, Any] | str | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode = {render_mode!r} is not allowed; allowed: {self.metadata['render_modes']}")
+        self.task = HuntingTask(1, config, **overrides)
+        self.action_space = self.task.action_space
+        self.observation_space = self.task.observation_space
+        self.render_mode = render_mode
+        self._renderer = None
+        self._seeded = False
+
+    @property
+    def config(self) -> dict:
+        return self.task.config
+
+    def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self.task.seed_rows(np.array([0]), [seed])
+            self._seeded = True
+        elif not self._seeded:
+            self.task.seed_rows(np.array([0]), [int(self.np_random.integers(2**63))])
+            self._seeded = True
+        self.task.reset_rows(np.array([0]), options)
+        if self.render_mode == "human":
+            self.render()
+        return self.task.obs[0].copy(), info_from_row(self.task, 0)
+
+    def step(self, action):
+        self.task.step(action)
+        flags = self.task.flags[0]
+        obs = self.task.obs[0].copy()
+        if self.render_mode == "human":
+            self.render()
+        return obs, float(self.task.reward[0]), bool(flags[0]), bool(flags[1]), info_from_row(self.task, 0)
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        if self._renderer is None:
+            from .render import BogieRenderer
+
+            self._renderer = BogieRenderer(self.task, self.render_mode, self.metadata["render_fps"])
+        return self._renderer.render(0)
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return tuple(CHANNELS[k] for k in self.task.active_channels)
