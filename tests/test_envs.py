@@ -97,18 +97,20 @@ def test_single_vector_and_sb3_envs_give_identical_trajectories():
     assert ends >= 6
 
 
-def test_serial_and_parallel_kernels_agree_bit_for_bit():
-    small, large = HuntingTask(4), HuntingTask(K.PARALLEL_THRESHOLD)
+def test_batch_size_does_not_change_a_rows_trajectory():
+    """Rows are independent: a row of a 64-env batch follows exactly the 4-env batch's row."""
+    small, large = HuntingTask(4), HuntingTask(64)
     small.seed_rows(np.arange(4), list(range(4)))
-    large.seed_rows(np.arange(K.PARALLEL_THRESHOLD), [i % 4 for i in range(K.PARALLEL_THRESHOLD)])
+    large.seed_rows(np.arange(64), [i % 4 for i in range(64)])
     small.reset_rows(np.arange(4))
-    large.reset_rows(np.arange(K.PARALLEL_THRESHOLD))
+    large.reset_rows(np.arange(64))
     rng = np.random.default_rng(1)
     for _ in range(100):
         a = rng.uniform(-1, 1, (4, 4))
         small.step(a)
-        large.step(np.tile(a, (K.PARALLEL_THRESHOLD // 4, 1)))
+        large.step(np.tile(a, (16, 1)))
         assert np.array_equal(small.obs, large.obs[:4]) and np.array_equal(small.x, large.x[:4])
+        assert np.array_equal(small.x, large.x[60:])
 
 
 def test_bad_actions_are_errors_or_documented_clipping():

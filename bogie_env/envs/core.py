@@ -202,8 +202,7 @@ class HuntingTask:
 
     def step(self, actions: Any) -> None:
         a = self.check_actions(actions)
-        step = K.task_step_parallel if self.num_envs >= K.PARALLEL_THRESHOLD else K.task_step_serial
-        step(self.x, self.scal, self.act, self.delay, a, self.P, self.cfg, self.track.values,
+        K.task_step(self.x, self.scal, self.act, self.delay, a, self.P, self.cfg, self.track.values,
              self.obs, self.reward, self.flags, self.info)  # fmt: skip
         self._add_noise(np.arange(self.num_envs))
 

@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, _rhs_row
-from ..integrate import FASTMATH, STATUS_OK, _advance_row, _channel_velocity, _track_at
+from ..integrate import FASTMATH, N_CHUNKS, STATUS_OK, WORK_SIZE, _advance_row, _track_at, chunk_bounds
 from .config import MAX_DELAY_STEPS
 
 # ---- per-row scalar columns ------------------------------------------------------------
@@ -69,7 +69,16 @@ def _clip(value, bound):
 
 
 @njit(cache=True, inline="always")
-def _task_row(n, x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info, tmp20, q4, yt2, f_t, c_t, u_max, decay, u_end, power):
+def _task_row(n, x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info, work):
+    tmp20 = work[WORK_SIZE : WORK_SIZE + 20]
+    q4 = work[WORK_SIZE + 20 : WORK_SIZE + 24]
+    yt2 = work[WORK_SIZE + 24 : WORK_SIZE + 26]
+    f_t = work[WORK_SIZE + 26 : WORK_SIZE + 30]
+    c_t = work[WORK_SIZE + 30 : WORK_SIZE + 34]
+    u_max = work[WORK_SIZE + 34 : WORK_SIZE + 38]
+    decay = work[WORK_SIZE + 38 : WORK_SIZE + 42]
+    u_end = work[WORK_SIZE + 42 : WORK_SIZE + 46]
+    power = work[WORK_SIZE + 46 : WORK_SIZE + 50]
     p = P[n]
     dt = cfg[C_DT]
     n_sub = int(cfg[C_NSUB])
@@ -108,7 +117,7 @@ def _task_row(n, x, scal, act, delay, action, P, cfg, profile, obs, reward, flag
     s0 = scal[n, S_DIST]
     f_start = act[n, 0:4]
     c_start = act[n, 4:8]
-    status = _advance_row(x[n], v0, a_lin, s0, dt, n_sub, f_start, f_t, c_start, c_t, decay, u_max, profile, inv_dx, p, u_end, power)
+    status = _advance_row(x[n], v0, a_lin, s0, dt, n_sub, f_start, f_t, c_start, c_t, decay, u_max, profile, inv_dx, p, u_end, power, work)
     v1 = v0 + a_lin * dt
     s1 = s0 + v0 * dt + 0.5 * a_lin * dt * dt
     scal[n, S_SPEED] = v1
@@ -201,29 +210,29 @@ def _observe(n, x, v1, p, yt2, u_end, u_max, cfg, obs, tmp20, q4):
                 m += 1
 
 
-def _task_step(x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info):
-    for n in prange(x.shape[0]):
-        tmp20 = np.empty(N_STATES)
-        q4 = np.empty(N_INPUTS)
-        yt2 = np.empty(2)
-        f_t = np.empty(N_INPUTS)
-        c_t = np.empty(N_INPUTS)
-        u_max = np.empty(N_INPUTS)
-        decay = np.empty(N_INPUTS)
-        u_end = np.empty(N_INPUTS)
-        power = np.empty(N_INPUTS)
-        _task_row(n, x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info,
-                  tmp20, q4, yt2, f_t, c_t, u_max, decay, u_end, power)  # fmt: skip
+# One compiled kernel for every batch size, N = 1 included: the single env, the Gymnasium
+# vector env and the SB3 VecEnv then run identical machine code (fastmath may reorder
+# arithmetic differently in differently compiled variants, which would break bitwise equality).
+@njit(cache=True, fastmath=FASTMATH, parallel=True)
+def task_step(x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info):
+    n_rows = x.shape[0]
+    n_chunks = min(n_rows, N_CHUNKS)
+    for c in prange(n_chunks):
+        work = np.empty(WORK_SIZE + 50)  # one scratch buffer per chunk (see integrate._advance_row)
+        start, stop = chunk_bounds(n_rows, n_chunks, c)
+        for n in range(start, stop):
+            _task_row(n, x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info, work)
 
 
-def _task_observe(x, scal, act, P, cfg, profile, obs):
+@njit(cache=True, fastmath=FASTMATH)
+def task_observe(x, scal, act, P, cfg, profile, obs):
     """Observations without stepping (after a reset); actuators at rest."""
-    for n in prange(x.shape[0]):
-        tmp20 = np.empty(N_STATES)
-        q4 = np.empty(N_INPUTS)
-        yt2 = np.empty(2)
-        u_end = np.zeros(N_INPUTS)
-        u_max = np.empty(N_INPUTS)
+    tmp20 = np.empty(N_STATES)
+    q4 = np.empty(N_INPUTS)
+    yt2 = np.empty(2)
+    u_end = np.zeros(N_INPUTS)
+    u_max = np.empty(N_INPUTS)
+    for n in range(x.shape[0]):
         for k in range(N_INPUTS):
             base = C_CHANNELS + k * CH_FIELDS
             u_max[k] = cfg[base + CH_MAX] if int(cfg[base + CH_MODE]) != MODE_OFF else 0.0
@@ -233,10 +242,3 @@ def _task_observe(x, scal, act, P, cfg, profile, obs):
         yt2[1] = _track_at(profile, inv_dx, scal[n, S_DIST] - p[P_L1])
         _observe(n, x, scal[n, S_SPEED], p, yt2, u_end, u_max, cfg, obs, tmp20, q4)
 
-
-# The same Python source compiled twice: serial for small batches (no thread start-up),
-# parallel for large ones. tests/test_envs.py checks that both give identical bits.
-task_step_serial = njit(cache=True, fastmath=FASTMATH)(_task_step)
-task_step_parallel = njit(cache=True, fastmath=FASTMATH, parallel=True)(_task_step)
-task_observe = njit(cache=True, fastmath=FASTMATH)(_task_observe)
-PARALLEL_THRESHOLD = 64

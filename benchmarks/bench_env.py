@@ -1,0 +1,107 @@
+"""Benchmark of the environments, beside Gymnasium's own Pendulum-v1, in one run.
+
+    python benchmarks/bench_env.py            # table
+    python benchmarks/bench_env.py --json     # one JSON object
+
+Each env step of bogie-env covers 10 ms of simulated time (3 RK4 substeps over 300-600 km/h).
+Single envs are timed both raw (``env.unwrapped``) and as ``gym.make`` returns them (with
+Gymnasium's wrappers). Vector figures include observations, rewards and infos. Ratios within
+one run are the trustworthy numbers on a shared machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import bogie_env  # noqa: F401
+from bogie_env.envs.vector import BogieHuntingSB3VecEnv, BogieHuntingVectorEnv
+
+REPEATS = 3
+
+
+def rate_single(env, n_steps: int) -> float:
+    """Steps per second of a single env with a fixed action, resets included."""
+    env.reset(seed=0)
+    action = np.zeros(env.action_space.shape, dtype=np.float32)
+    best = 0.0
+    for _ in range(REPEATS):
+        start = time.perf_counter()
+        for _ in range(n_steps):
+            _, _, term, trunc, _ = env.step(action)
+            if term or trunc:
+                env.reset()
+        best = max(best, n_steps / (time.perf_counter() - start))
+    return best
+
+
+def rate_vector(venv, n_calls: int) -> float:
+    venv.reset(seed=0)
+    actions = np.zeros((venv.num_envs,) + venv.single_action_space.shape, dtype=np.float32)
+    venv.step(actions)
+    best = 0.0
+    for _ in range(REPEATS):
+        start = time.perf_counter()
+        for _ in range(n_calls):
+            venv.step(actions)
+        best = max(best, n_calls * venv.num_envs / (time.perf_counter() - start))
+    return best
+
+
+def rate_sb3(venv, n_calls: int) -> float:
+    venv.reset()
+    actions = np.zeros((venv.num_envs,) + venv.action_space.shape, dtype=np.float32)
+    best = 0.0
+    for _ in range(REPEATS):
+        start = time.perf_counter()
+        for _ in range(n_calls):
+            venv.step_async(actions)
+            venv.step_wait()
+        best = max(best, n_calls * venv.num_envs / (time.perf_counter() - start))
+    return best
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--sizes", default="1,64,1024,4096")
+    args = parser.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",")]
+
+    results: dict = {}
+    bogie = gym.make("Bogie/Hunting-v0")
+    pendulum = gym.make("Pendulum-v1")
+    results["single_steps_per_s"] = rate_single(bogie.unwrapped, 20000)
+    results["pendulum_steps_per_s"] = rate_single(pendulum.unwrapped, 20000)
+    results["single_made_steps_per_s"] = rate_single(bogie, 20000)
+    results["pendulum_made_steps_per_s"] = rate_single(pendulum, 20000)
+    results["single_vs_pendulum"] = results["single_steps_per_s"] / results["pendulum_steps_per_s"]
+    results["vector_steps_per_s"] = {}
+    for n in sizes:
+        venv = BogieHuntingVectorEnv(n)
+        calls = max(20, 40000 // n)
+        results["vector_steps_per_s"][str(n)] = rate_vector(venv, calls)
+    results["sb3_vec_env_steps_per_s"] = {}
+    for n in (64, 4096):
+        results["sb3_vec_env_steps_per_s"][str(n)] = rate_sb3(BogieHuntingSB3VecEnv(n, seed=0), max(20, 40000 // n))
+    results["simulated_seconds_per_step"] = bogie.unwrapped.config["dt"]
+    results["rk4_substeps_per_step"] = bogie.unwrapped.task.n_sub
+    results["cpus"] = os.cpu_count()
+    results["targets"] = {
+        "single >= 50000 steps/s": results["single_steps_per_s"] >= 50000,
+        "vector N=4096 >= 2000000 env-steps/s": results["vector_steps_per_s"].get("4096", 0) >= 2e6,
+    }
+    if args.json:
+        print(json.dumps(results, indent=2))
+        return
+    for key, value in results.items():
+        print(f"{key:32s} {value}")
+
+
+if __name__ == "__main__":
+    main()
