@@ -70,6 +70,8 @@ def test_ramp_down_converges_as_the_ramp_slows(nonlinear):
     gaps = np.abs(collapse - nonlinear.fixed_speed_kmh)
     assert np.all(np.diff(gaps) < 0)  # and approach the fixed-speed fold
     assert gaps[-1] < 3.0
+    # extrapolated to a vanishing rate (collapse delay ~ sqrt(rate) near a fold) they meet it
+    assert nonlinear.extrapolated_kmh == pytest.approx(nonlinear.fixed_speed_kmh, abs=1.0)
 
 
 def test_ramp_down_bad_input(paper_model):

@@ -107,13 +107,22 @@ def bifurcation_diagram(
     small_offset: float = 1e-4,
     duration: float = 60.0,
     threshold: float | None = None,
+    refine_kmh: float = 5.0,
 ) -> BifurcationDiagram:
-    """Amplitude against speed from a small perturbation and from the top speed's limit cycle."""
+    """Amplitude against speed from a small perturbation and from the top speed's limit cycle.
+
+    Besides the even grid, speeds every 0.5 km/h from ``refine_kmh`` below the linear critical
+    speed to 2 km/h above it resolve the narrow hysteresis band of a subcritical Hopf point.
+    """
     if not (np.isfinite(v_min_kmh) and np.isfinite(v_max_kmh) and 0 < v_min_kmh < v_max_kmh):
         raise ValueError(f"bifurcation_diagram: need 0 < v_min_kmh < v_max_kmh; got {v_min_kmh}, {v_max_kmh}")
     if int(n_speeds) < 2:
         raise ValueError(f"bifurcation_diagram: n_speeds = {n_speeds} must be >= 2")
     speeds_kmh = np.linspace(v_min_kmh, v_max_kmh, int(n_speeds))
+    linear = critical_speed(model).speed_kmh
+    if refine_kmh > 0 and np.isfinite(linear):
+        fine = np.arange(linear - refine_kmh, linear + 2.0, 0.5)
+        speeds_kmh = np.unique(np.round(np.concatenate([speeds_kmh, fine[(fine > v_min_kmh) & (fine < v_max_kmh)]]), 3))
     speeds = speeds_kmh / KMH
     x_eq = model.equilibrium(speeds[0])
     small = np.repeat(x_eq[None], speeds.size, axis=0)
@@ -123,7 +132,7 @@ def bifurcation_diagram(
     amplitude, _ = fixed_speed_amplitudes(model, np.concatenate([speeds, speeds]), starts, duration)
     return BifurcationDiagram(
         speeds_kmh, amplitude[: speeds.size], amplitude[speeds.size :], small_offset, _lc_threshold(model, threshold),
-        critical_speed(model).speed_kmh,
+        linear,
     )  # fmt: skip
 
 
@@ -163,13 +172,30 @@ class NonlinearCriticalSpeed:
     threshold: float
 
     @property
+    def extrapolated_kmh(self) -> float | None:
+        """Ramp-down collapse speeds extrapolated to a vanishing rate.
+
+        Near a fold the delay of the collapse grows like the square root of the rate (slow
+        passage past a saddle-node), so ``collapse = V0 - b sqrt(rate)`` is fitted to the three
+        slowest ramps and V0 returned.
+        """
+        pairs = [(r, c) for r, c in zip(self.rates_kmh_per_s, self.collapse_kmh) if c is not None]
+        if len(pairs) < 3:
+            return None
+        rates, collapse = np.array(pairs[-3:]).T
+        slope, intercept = np.polyfit(np.sqrt(rates), collapse, 1)
+        return float(intercept)
+
+    @property
     def value_kmh(self) -> float | None:
-        """The nonlinear critical speed: the slowest ramp's collapse speed."""
-        return self.collapse_kmh[-1]
+        """The nonlinear critical speed: the fixed-speed fold (the limit the ramp-downs converge
+        to), or the slowest ramp's collapse speed if the fixed-speed check was not run."""
+        return self.fixed_speed_kmh if self.fixed_speed_kmh is not None else self.collapse_kmh[-1]
 
     def to_dict(self) -> dict:
         return {
             "nonlinear_critical_speed_kmh": self.value_kmh,
+            "ramp_down_extrapolated_kmh": self.extrapolated_kmh,
             "linear_critical_speed_kmh": self.linear_critical_speed_kmh,
             "ramp_down": [
                 {"rate_kmh_per_s": r, "collapse_kmh": c} for r, c in zip(self.rates_kmh_per_s, self.collapse_kmh)

@@ -49,6 +49,10 @@ def default_config() -> dict[str, Any]:
             "accel_range": None,
         },
         "initial_perturbation": 1e-3,  # m, std of the random initial lateral offsets
+        # with this probability an episode starts with large offsets instead (uniform in
+        # [0.5, 1] x large_perturbation, random signs): flange contact, as on a hunting cycle
+        "large_perturbation_probability": 0.0,
+        "large_perturbation": 0.012,  # m
         "track": {"rms": 5e-4, "wavelength_min": 3.0, "wavelength_max": 80.0, "seed": 0},
         "randomize": {},  # per-episode parameter scale ranges, e.g. {"Csy": [0.5, 1.0]}
         "actuators": copy.deepcopy(_ACTUATOR_DEFAULTS),
@@ -117,6 +121,8 @@ def validate(config: dict) -> dict:
     if sp["end_kmh"] < sp["start_kmh"]:
         raise ConfigError(f"config 'speed.end_kmh' = {sp['end_kmh']:g} must not be below 'speed.start_kmh' = {sp['start_kmh']:g}")
     c["initial_perturbation"] = _number("initial_perturbation", c["initial_perturbation"], 0.0, 0.02)
+    c["large_perturbation_probability"] = _number("large_perturbation_probability", c["large_perturbation_probability"], 0.0, 1.0)
+    c["large_perturbation"] = _number("large_perturbation", c["large_perturbation"], 0.0, 0.03)
     tr = c["track"]
     tr["rms"] = _number("track.rms", tr["rms"], 0.0, 0.01)
     tr["wavelength_min"] = _number("track.wavelength_min", tr["wavelength_min"], 1.0, 200.0)

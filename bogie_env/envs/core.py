@@ -150,6 +150,9 @@ class HuntingTask:
             sigma = self.config["initial_perturbation"]
             offsets = rng.normal(0.0, sigma, 3)
             yaws = rng.normal(0.0, sigma / (2 * self.base_params.L1), 3)
+            if self.config["large_perturbation_probability"] > 0 and rng.random() < self.config["large_perturbation_probability"]:
+                size = self.config["large_perturbation"]
+                offsets = rng.uniform(0.5, 1.0, 3) * size * rng.choice([-1.0, 1.0], 3)
             x[[state_index("y1"), state_index("y2"), state_index("yb")]] += offsets
             x[[state_index("psi1"), state_index("psi2"), state_index("psib")]] += yaws
             self.x[i] = x

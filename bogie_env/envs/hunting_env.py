@@ -90,7 +90,9 @@ class BogieHuntingEnv(gym.Env):
 
     The bogie starts at the equilibrium at the start speed with random lateral offsets of the
     wheelsets and frame (standard deviation `initial_perturbation`, 1 mm) and yaw angles
-    (1 mm / 2 L1), at a random position along a periodic 262-km track-alignment profile.
+    (1 mm / 2 L1), at a random position along a periodic 262-km track-alignment profile. With
+    probability `large_perturbation_probability` (default 0) the lateral offsets are instead
+    large (uniform in [0.5, 1] x 12 mm, random signs): flange contact, as on a hunting cycle.
 
     ## Episode End
 

@@ -1,0 +1,344 @@
+"""Classical controllers for the hunting environments: passive, skyhook, gain-scheduled LQR/LQG.
+
+Every controller maps a batch of observations to a batch of actions in [-1, 1] (the env's
+action box), so it runs unchanged in the single env, the vector envs and the evaluation
+protocol. Controllers that need more than the default sensors declare it in
+``observation_type``; the evaluation builds the environment accordingly.
+
+- :class:`PassiveController`: zero command (with force actuators, zero force).
+- :class:`SkyhookController`: dampers to the "sky" on the frame's lateral and yaw motion and
+  on each wheelset's yaw, from the sensors (velocities from filtered accelerations and
+  differences).
+- :class:`LQRController`: full-state feedback designed on the physics core's linearisation at
+  each speed (discrete-time LQR with the actuators' 10 Hz lag in the design model), gains
+  interpolated in speed. Needs ``observation.type = "state"``: an idealised benchmark.
+- :class:`LQGController`: the same LQR gains on a steady-state Kalman-filter estimate from the
+  default sensors, gain-scheduled the same way: what could be built.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import expm, solve_discrete_are
+
+from bogie_env.dynamics import LATERAL_STATES, N_STATES, BogieModel, state_index
+from bogie_env.envs import kernel as K
+from bogie_env.envs.config import CHANNELS
+from bogie_env.envs.core import STATE_SCALES
+from bogie_env.integrate import channel_damping_jacobian  # noqa: F401  (documented relation)
+from bogie_env.stability import KMH, linearize
+
+LAT = list(LATERAL_STATES)
+N_LAT = len(LAT)
+
+
+class Controller:
+    """Base class: ``act(obs) -> actions`` on batches; ``reset(rows)`` clears internal state."""
+
+    name = "controller"
+    observation_type = "sensors"
+
+    def __init__(self, env_config: dict) -> None:
+        self.config = env_config
+        self.active = [k for k, name in enumerate(CHANNELS) if env_config["actuators"][name]["mode"] != "off"]
+        self.action_dim = max(1, len(self.active))
+        self.max_force = np.array([env_config["actuators"][CHANNELS[k]]["max_force"] for k in self.active])
+        self.dt = env_config["dt"]
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        """Clear the internal state of all envs (rows=None) or of some rows."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def speed_kmh(self, obs: np.ndarray) -> np.ndarray:
+        """The speed, read from the observation (the entry after the sensors or states)."""
+        index = N_STATES if self.observation_type == "state" else K.N_SENSORS - 1
+        return obs[:, index].astype(float) * K.SPEED_SCALE_KMH + K.SPEED_CENTRE_KMH
+
+
+class PassiveController(Controller):
+    name = "passive"
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.zeros((obs.shape[0], self.action_dim), dtype=np.float32)
+
+
+class SkyhookController(Controller):
+    """Skyhook damping from the sensors, saturated at each actuator's limit.
+
+    frame lateral force = -c_y * (frame lateral velocity), frame yaw torque = -c_psi * (frame yaw
+    rate), wheelset steering torque_i = -c_w * (absolute yaw rate of wheelset i). The frame's
+    lateral velocity is the leaky integral (0.3 Hz) of its measured acceleration; a wheelset's
+    absolute yaw rate is the difference quotient of its measured yaw relative to the frame plus
+    the measured frame yaw rate.
+    """
+
+    name = "skyhook"
+
+    def __init__(self, env_config: dict, c_lateral: float = 6.0e4, c_yaw: float = 3.0e5, c_wheelset: float = 3.0e5,
+                 leak_hz: float = 0.3) -> None:  # fmt: skip
+        super().__init__(env_config)
+        self.gains = {0: c_lateral, 1: c_yaw, 2: c_wheelset, 3: c_wheelset}
+        self.leak = math.exp(-2 * math.pi * leak_hz * self.dt)
+        self.velocity = np.zeros(0)
+        self.previous_rel_yaw = np.zeros((0, 2))
+        self.started = np.zeros(0, dtype=bool)
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        if rows is None or self.velocity.size != n_envs:
+            self.velocity = np.zeros(n_envs)
+            self.previous_rel_yaw = np.zeros((n_envs, 2))
+            self.started = np.zeros(n_envs, dtype=bool)
+        else:
+            self.velocity[rows] = 0.0
+            self.started[rows] = False
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        n = obs.shape[0]
+        if self.velocity.size != n:
+            self.reset(n)
+        accel = obs[:, 0] * K.ACCEL_SCALE
+        frame_yaw_rate = obs[:, 1] * K.YAW_RATE_SCALE
+        rel_yaw = obs[:, 4:6].astype(float) * K.REL_YAW_SCALE
+        self.velocity = self.leak * self.velocity + accel * self.dt
+        rel_rate = np.where(self.started[:, None], (rel_yaw - self.previous_rel_yaw) / self.dt, 0.0)
+        self.previous_rel_yaw = rel_yaw
+        self.started[:] = True
+        rates = {0: self.velocity, 1: frame_yaw_rate, 2: rel_rate[:, 0] + frame_yaw_rate, 3: rel_rate[:, 1] + frame_yaw_rate}
+        actions = np.zeros((n, self.action_dim))
+        for j, k in enumerate(self.active):
+            actions[:, j] = -self.gains[k] * rates[k] / self.max_force[j]
+        return np.clip(actions, -1, 1).astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# Gain-scheduled LQR / LQG
+# ---------------------------------------------------------------------------------------------
+
+
+def channel_to_generalised(active: list[int]) -> np.ndarray:
+    """(4, n_active): generalised forces per unit channel force (wheelset torques react on the frame)."""
+    full = np.array([[1, 0, 0, 0], [0, 1, -1, -1], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+    return full[:, active]
+
+
+def discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-order-hold discretisation via the block exponential."""
+    n, m = b.shape
+    block = np.zeros((n + m, n + m))
+    block[:n, :n] = a
+    block[:n, n:] = b
+    e = expm(block * dt)
+    return e[:n, :n], e[:n, n:]
+
+
+@dataclass
+class DesignPoint:
+    speed: float  # m/s
+    gain: np.ndarray  # (n_act, n_aug): u = -K z
+    ad: np.ndarray
+    bd: np.ndarray
+    kalman: np.ndarray | None = None  # (n_aug, n_meas)
+    cd: np.ndarray | None = None
+
+
+class LQRController(Controller):
+    """Gain-scheduled discrete LQR on the lateral states plus the actuator lag states.
+
+    Design model at speed V: ``z = [x_lat (16), F (n_act)]``,
+    ``dx/dt = J_lat(V) x + B G F``, ``dF/dt = w (u max_force - F)`` with ``w = 2 pi * bandwidth``;
+    ZOH at the env step. Weights: lateral wheelset displacement against the flange clearance,
+    yaw against 5 mrad, frame motion, and the normalised command ``u`` with weight ``r``.
+    Gains are designed every ``step_kmh`` over the env's speed range and interpolated.
+    """
+
+    name = "lqr"
+    observation_type = "state"
+
+    def __init__(self, env_config: dict, r: float = 1.0, step_kmh: float = 10.0, model: BogieModel | None = None,
+                 v_range_kmh: tuple[float, float] | None = None) -> None:  # fmt: skip
+        super().__init__(env_config)
+        from bogie_env.params import load_params
+
+        params = load_params(env_config["bogie"], [f"{k}={v}" for k, v in env_config["bogie_overrides"].items()])
+        self.model = model if model is not None else BogieModel(params)
+        self.lin = linearize(self.model)
+        self.r = r
+        sp = env_config["speed"]
+        lo, hi = v_range_kmh if v_range_kmh else (min(250.0, sp["start_kmh"]), max(700.0, sp["end_kmh"]))
+        self.speeds_kmh = np.arange(lo, hi + 1e-9, step_kmh)
+        self.n_act = len(self.active)
+        self.bandwidth = np.array([2 * math.pi * env_config["actuators"][CHANNELS[k]]["bandwidth_hz"] for k in self.active])
+        self.points = [self._design(v / KMH) for v in self.speeds_kmh]
+        self.gains = np.stack([p.gain for p in self.points])  # (n_speeds, n_act, n_aug)
+        self.force_state = np.zeros((0, self.n_act))
+
+    # ---- design -------------------------------------------------------------------------------
+    def continuous_model(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
+        a_lat = self.lin.lateral_jacobian(speed)
+        b_full = self.model.input_matrix() @ channel_to_generalised(self.active)  # (20, n_act)
+        b_lat = b_full[LAT]
+        n, m = N_LAT, self.n_act
+        a = np.zeros((n + m, n + m))
+        a[:n, :n] = a_lat
+        a[:n, n:] = b_lat
+        a[n:, n:] = -np.diag(self.bandwidth)
+        b = np.zeros((n + m, m))
+        b[n:, :] = np.diag(self.bandwidth * self.max_force)
+        return a, b
+
+    def weights(self) -> tuple[np.ndarray, np.ndarray]:
+        delta = self.model.params.delta
+        q_state = np.zeros(N_STATES)
+        for name, scale in (("y1", delta), ("y2", delta), ("yb", delta), ("psi1", 5e-3), ("psi2", 5e-3), ("psib", 5e-3),
+                            ("phi1", 5e-3), ("phi2", 5e-3), ("dy1", 0.1), ("dy2", 0.1), ("dyb", 0.1),
+                            ("dpsi1", 0.1), ("dpsi2", 0.1), ("dpsib", 0.1), ("dphi1", 0.1), ("dphi2", 0.1)):  # fmt: skip
+            q_state[state_index(name)] = 1.0 / scale**2
+        q = np.diag(np.concatenate([q_state[LAT], 1e-2 / self.max_force**2]))
+        return q, self.r * np.eye(self.n_act)
+
+    def _design(self, speed: float) -> DesignPoint:
+        a, b = self.continuous_model(speed)
+        ad, bd = discretize(a, b, self.dt)
+        q, r = self.weights()
+        p = solve_discrete_are(ad, bd, q, r)
+        gain = np.linalg.solve(r + bd.T @ p @ bd, bd.T @ p @ ad)
+        return DesignPoint(speed, gain, ad, bd)
+
+    def closed_loop_eigenvalues(self, speed_kmh: float) -> np.ndarray:
+        """Discrete closed-loop eigenvalues of the design model at a design speed (|z| < 1: stable)."""
+        k = int(np.argmin(np.abs(self.speeds_kmh - speed_kmh)))
+        point = self.points[k]
+        return np.linalg.eigvals(point.ad - point.bd @ point.gain)
+
+    # ---- runtime ------------------------------------------------------------------------------
+    def gain_at(self, speed_kmh: np.ndarray) -> np.ndarray:
+        """Linearly interpolated gains, (n, n_act, n_aug)."""
+        v = np.clip(speed_kmh, self.speeds_kmh[0], self.speeds_kmh[-1])
+        pos = (v - self.speeds_kmh[0]) / (self.speeds_kmh[1] - self.speeds_kmh[0]) if len(self.speeds_kmh) > 1 else v * 0
+        i0 = np.clip(np.floor(pos).astype(int), 0, len(self.speeds_kmh) - 1)
+        i1 = np.clip(i0 + 1, 0, len(self.speeds_kmh) - 1)
+        w = (pos - i0)[:, None, None]
+        return (1 - w) * self.gains[i0] + w * self.gains[i1]
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        if rows is None or self.force_state.shape[0] != n_envs:
+            self.force_state = np.zeros((n_envs, self.n_act))
+        else:
+            self.force_state[rows] = 0.0
+
+    def _lag_update(self, actions: np.ndarray) -> None:
+        """The actuators' first-order lag, replicated from the commands (known exactly)."""
+        w = np.exp(-self.bandwidth * self.dt)
+        self.force_state = actions * self.max_force + (self.force_state - actions * self.max_force) * w
+
+    def state_estimate(self, obs: np.ndarray) -> np.ndarray:
+        """Lateral states from the full-state observation."""
+        return obs[:, :N_STATES].astype(float)[:, LAT] * STATE_SCALES[LAT]
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        n = obs.shape[0]
+        if self.force_state.shape[0] != n:
+            self.reset(n)
+        x = self.state_estimate(obs)
+        z = np.concatenate([x, self.force_state], axis=1)
+        gains = self.gain_at(self.speed_kmh(obs))
+        actions = np.clip(-np.einsum("nij,nj->ni", gains, z), -1.0, 1.0)
+        self._lag_update(actions)
+        return actions.astype(np.float32)
+
+
+class LQGController(LQRController):
+    """The LQR gains on a steady-state Kalman-filter estimate from the default sensors.
+
+    Measurements (env sensors): frame lateral acceleration, frame yaw rate, wheelsets' lateral
+    displacement and yaw relative to the frame. Process noise: the track alignment entering the
+    wheelset lateral equations; measurement noise: 1 % of each sensor's scale (plus the env's
+    configured noise). Gains and filter are scheduled on the measured speed.
+    """
+
+    name = "lqg"
+    observation_type = "sensors"
+
+    def __init__(self, env_config: dict, **kwargs) -> None:
+        super().__init__(env_config, **kwargs)
+        for point in self.points:
+            self._design_filter(point)
+        self.kalmans = np.stack([p.kalman for p in self.points])
+        self.cds = np.stack([p.cd for p in self.points])
+        self.ads = np.stack([p.ad for p in self.points])
+        self.bds = np.stack([p.bd for p in self.points])
+        self.estimate = np.zeros((0, N_LAT + self.n_act))
+        self.last_action = np.zeros((0, self.n_act))
+
+    def measurement_matrix(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
+        """y = C z + D u for the six physical sensors, in the observation's scaled units."""
+        a, b = self.continuous_model(speed)
+        L1 = self.model.params.L1
+        delta = self.model.params.delta
+        idx = {name: LAT.index(state_index(name)) for name in ("y1", "y2", "yb", "psi1", "psi2", "psib", "dyb", "dpsib")}
+        c = np.zeros((6, a.shape[0]))
+        c[0] = a[idx["dyb"]] / K.ACCEL_SCALE  # frame lateral acceleration (the dyb row)
+        c[1, idx["dpsib"]] = 1.0 / K.YAW_RATE_SCALE
+        c[2, idx["y1"]], c[2, idx["yb"]], c[2, idx["psib"]] = 1 / delta, -1 / delta, -L1 / delta
+        c[3, idx["y2"]], c[3, idx["yb"]], c[3, idx["psib"]] = 1 / delta, -1 / delta, L1 / delta
+        c[4, idx["psi1"]], c[4, idx["psib"]] = 1 / K.REL_YAW_SCALE, -1 / K.REL_YAW_SCALE
+        c[5, idx["psi2"]], c[5, idx["psib"]] = 1 / K.REL_YAW_SCALE, -1 / K.REL_YAW_SCALE
+        d = np.zeros((6, self.n_act))
+        d[0] = b[idx["dyb"]] / K.ACCEL_SCALE
+        return c, d
+
+    def _design_filter(self, point: DesignPoint) -> None:
+        c, _ = self.measurement_matrix(point.speed)
+        n = point.ad.shape[0]
+        # process noise: lateral forcing of the wheelsets (track alignment through creep) and
+        # small white noise on every state, to keep the filter responsive
+        g = np.zeros((n, 2))
+        g[LAT.index(state_index("dy1")), 0] = 1.0
+        g[LAT.index(state_index("dy2")), 1] = 1.0
+        w = g @ g.T * (0.05**2) + np.eye(n) * 1e-10
+        noise = max(0.01, float(self.config["observation"]["noise"]))
+        v = np.eye(c.shape[0]) * noise**2
+        p = solve_discrete_are(point.ad.T, c.T, w, v)
+        point.kalman = p @ c.T @ np.linalg.inv(c @ p @ c.T + v)
+        point.cd = c
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        super().reset(n_envs, rows)
+        if rows is None or self.estimate.shape[0] != n_envs:
+            self.estimate = np.zeros((n_envs, N_LAT + self.n_act))
+            self.last_action = np.zeros((n_envs, self.n_act))
+        else:
+            self.estimate[rows] = 0.0
+            self.last_action[rows] = 0.0
+
+    def _interp(self, stack: np.ndarray, speed_kmh: np.ndarray) -> np.ndarray:
+        v = np.clip(speed_kmh, self.speeds_kmh[0], self.speeds_kmh[-1])
+        step = self.speeds_kmh[1] - self.speeds_kmh[0]
+        pos = (v - self.speeds_kmh[0]) / step
+        i0 = np.clip(np.floor(pos).astype(int), 0, len(self.speeds_kmh) - 1)
+        i1 = np.clip(i0 + 1, 0, len(self.speeds_kmh) - 1)
+        w = (pos - i0)[:, None, None]
+        return (1 - w) * stack[i0] + w * stack[i1]
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        n = obs.shape[0]
+        if self.estimate.shape[0] != n:
+            self.reset(n)
+        speed = self.speed_kmh(obs)
+        ad, bd = self._interp(self.ads, speed), self._interp(self.bds, speed)
+        cd, kal = self._interp(self.cds, speed), self._interp(self.kalmans, speed)
+        # predict with the last command, then correct with the new measurement
+        prior = np.einsum("nij,nj->ni", ad, self.estimate) + np.einsum("nij,nj->ni", bd, self.last_action)
+        measured = obs[:, :6].astype(float)
+        _, d = self.measurement_matrix(float(np.mean(speed)) / KMH)
+        predicted = np.einsum("nij,nj->ni", cd, prior) + self.last_action @ d.T
+        self.estimate = prior + np.einsum("nij,nj->ni", kal, measured - predicted)
+        gains = self.gain_at(speed)
+        actions = np.clip(-np.einsum("nij,nj->ni", gains, self.estimate), -1.0, 1.0)
+        self.last_action = actions
+        return actions.astype(np.float32)
