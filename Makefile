@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test test-slow test-all bench reproduce clean
+.PHONY: demo test test-slow test-all bench reproduce clean clean-cache
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,8 +30,16 @@ test-slow: $(STAMP)
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -m "slow or not slow"
 
+## every Section 4-5 figure and the report (docs/reproduction.md)
+reproduce: $(STAMP)
+	$(BIN)/bogie reproduce --out docs/reproduction
+
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_dynamics.py
 
-clean:
+## drop compiled numba kernels (after editing a module that other kernels inline)
+clean-cache:
+	find bogie_env -name '*.nbi' -delete -o -name '*.nbc' -delete
+
+clean: clean-cache
 	rm -rf $(VENV) build *.egg-info .pytest_cache

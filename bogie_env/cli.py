@@ -71,6 +71,21 @@ def _json_default(value):
     raise TypeError(f"not JSON serialisable: {type(value)}")
 
 
+def env_config_from_args(args: argparse.Namespace) -> dict:
+    """The env config (``--env-config``) with the bogie preset and ``--set`` overrides folded in."""
+    from .envs.config import make_config
+
+    env_config = make_config(args.env_config)
+    if args.config is None and not args.overrides:
+        return env_config
+    params = load_params(args.config or env_config["bogie"], args.overrides)  # validates names and values
+    names = [item.split("=", 1)[0].strip() for item in args.overrides]
+    if args.config is not None:
+        env_config["bogie"] = args.config
+    env_config["bogie_overrides"] = {**env_config["bogie_overrides"], **{n: float(getattr(params, n)) for n in names}}
+    return make_config(env_config)
+
+
 # ---------------------------------------------------------------------------------
 @command("critical-speed", "linear critical speed (km/h), hunting frequency (Hz) and equilibrium")
 @json_option
@@ -340,13 +355,12 @@ def cmd_train(args: argparse.Namespace) -> int:
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
 @argument("--policy", action="append", required=True,
           help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip); repeatable")
+@bogie_options
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from agents.evaluate import ProtocolSettings, evaluate_policy
     from agents.policies import load_policy
 
-    from .envs.config import make_config
-
-    env_config = make_config(args.env_config)
+    env_config = env_config_from_args(args)
     parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
     allowed = {"critical", "ramp", "effort", "robustness"}
     if not parts or set(parts) - allowed:
@@ -380,14 +394,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 @argument("--env-config", default=None)
 @argument("--out", required=True, help="output folder, e.g. docs/results")
 @argument("--policy", action="append", required=True, help="as for evaluate; repeatable")
+@bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from agents.results import run
 
-    from .envs.config import make_config
-
-    payload = run(args.policy, make_config(args.env_config), Path(args.out), args.resume, args.seed)
+    payload = run(args.policy, env_config_from_args(args), Path(args.out), args.resume, args.seed)
     print((Path(args.out) / "table.md").read_text())
     return 0 if payload else 1
 

@@ -10,6 +10,7 @@ from agents.controllers import LQGController, LQRController, PassiveController, 
 from agents.evaluate import LimitCycleStarts, ProtocolSettings, closed_loop_critical_speed, evaluate_policy
 from agents.policies import PRETRAINED_DIR, load_policy, load_sb3_policy
 from agents.train import load_run_config, train
+from bogie_env.cli import main as cli_main
 from bogie_env.analysis.bifurcation import nonlinear_critical_speed
 from bogie_env.envs.config import make_config
 from bogie_env.envs.hunting_env import BogieHuntingEnv
@@ -145,10 +146,33 @@ def test_pretrained_policy_meets_the_target(env_config):
     """The shipped policy raises the closed-loop critical speed by at least 100 km/h over
     passive, from a small perturbation and from the passive limit cycle, within the actuator
     limits on the irregular track."""
-    if not list(PRETRAINED_DIR.glob("*.zip")):
-        pytest.skip("no pretrained policy shipped")
+    assert list(PRETRAINED_DIR.glob("*.zip")), "agents/pretrained/ must ship a policy"
     pretrained = evaluate_policy(load_policy("pretrained", env_config), env_config, ProtocolSettings(),
                                  parts=("critical", "effort"))  # fmt: skip
     passive = evaluate_policy(PassiveController(env_config), env_config, ProtocolSettings(), parts=("critical",))
     assert pretrained["closed_loop_critical_speed_kmh"] >= passive["closed_loop_critical_speed_kmh"] + 100
     assert pretrained["effort"]["within_limits"] and pretrained["effort"]["hunted"] == 0
+
+
+def test_cli_evaluate_json_and_bogie_overrides(capsys):
+    """``bogie evaluate --set`` evaluates on the modified bogie: a softer Kpz lowers the passive
+    ramp's reach (Kpz -50 % has a linear critical speed near 210 km/h, below the ramp's start)."""
+    argv = ["evaluate", "--policy", "passive", "--parts", "ramp", "--json"]
+    assert cli_main(argv) == 0
+    nominal = json.loads(capsys.readouterr().out)["policies"][0]
+    assert cli_main(argv + ["--set", "Kpz=270000"]) == 0
+    soft = json.loads(capsys.readouterr().out)["policies"][0]
+    assert soft["ramp"]["mean_reached_kmh"] < nominal["ramp"]["mean_reached_kmh"] - 20
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["evaluate", "--policy", "passive", "--set", "Kqq=1"], "unknown parameter 'Kqq'"),
+        (["evaluate", "--policy", "passive", "--parts", "speedy"], "allowed parts are"),
+        (["evaluate", "--policy", "no/such/run"], "policy 'no/such/run' not found"),
+    ],
+)
+def test_cli_evaluate_bad_input(capsys, argv, message):
+    assert cli_main(argv) == 2
+    assert message in capsys.readouterr().err

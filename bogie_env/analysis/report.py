@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dynamics import BogieModel
-from ..params import BogieParams
+from ..params import CONFIG_DIR, BogieParams
 from . import plots
 from .bifurcation import bifurcation_diagram, nonlinear_critical_speed
 from .ramp import onset_sensitivity, speed_ramp
@@ -42,6 +42,18 @@ PAPER_TRENDS = {
     "Csx": "small effect; more damping raises the critical speed",
     "Csy": "significant: much lower for low damping, higher for large damping",
 }
+
+
+def _display_path(source: str) -> str:
+    """A preset path relative to the repository (or cwd) when it lies inside it, so reports do not
+    carry a machine-specific absolute path."""
+    path = Path(str(source))
+    for root in (CONFIG_DIR.parent, Path.cwd()):
+        try:
+            return str(path.resolve().relative_to(root.resolve()))
+        except (ValueError, OSError):
+            continue
+    return str(source)
 
 
 def write_text_atomic(path: Path, text: str) -> None:
@@ -69,7 +81,7 @@ def reproduce(out_dir: str | Path, params: BogieParams | None = None, workers: i
     out.mkdir(parents=True, exist_ok=True)
     params = params if params is not None else BogieParams.paper()
     model = BogieModel(params)
-    results: dict = {"config": params.source, "paper": PAPER, "timings_s": {}}
+    results: dict = {"config": _display_path(params.source), "paper": PAPER, "timings_s": {}}
 
     def stage(name: str):
         results["timings_s"][name] = time.perf_counter()
