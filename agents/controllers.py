@@ -28,7 +28,6 @@ from bogie_env.dynamics import LATERAL_STATES, N_STATES, BogieModel, state_index
 from bogie_env.envs import kernel as K
 from bogie_env.envs.config import CHANNELS
 from bogie_env.envs.core import STATE_SCALES
-from bogie_env.integrate import channel_damping_jacobian  # noqa: F401  (documented relation)
 from bogie_env.stability import KMH, linearize
 
 LAT = list(LATERAL_STATES)

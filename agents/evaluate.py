@@ -8,7 +8,7 @@ For each controller (``bogie evaluate --policy NAME|PATH --json``):
     perturbation (1 mm lateral offset of wheelset 1) and from the passive bogie's hunting limit
     cycle (flange contact) at that speed, or at the lowest speed above it where the passive
     bogie has one. A run "returns to rest" when, after ``duration_s``, the wheelsets' lateral
-    oscillation (half peak-to-peak) over the last 5 s is below 1 um or below half its value
+    oscillation (half peak-to-peak) over the last 5 s is below 10 um or below half its value
     over seconds 5-10, and the displacement stays below half the flange clearance (a steady
     offset is a new equilibrium, not hunting). The reported value is the lower of the two
     starts; the lowest failing speed is taken, so stability is assumed to be lost once.
@@ -16,8 +16,9 @@ For each controller (``bogie evaluate --policy NAME|PATH --json``):
 (b) **Ramp onset**: the env's default ramp (300 -> 600 km/h at 1 m/s^2 on the default 0.5 mm
     track) over several seeds; the onset is the env's hunting criterion (exponentially weighted
     rms over 100 m of the wheelset displacement relative to the rail above 0.6 x the clearance).
-(c) **Effort**: rms force, peak force and mean mechanical power of each channel at a fixed speed
-    above the passive critical speed (400 km/h) on the default irregular track.
+(c) **Effort**: rms force, peak force, rms force rate (chatter) and mean mechanical power of
+    each channel at a fixed speed above the passive critical speed (400 km/h) on the default
+    irregular track.
 (d) **Robustness**: (a) again on degraded bogies (Csy -50 %, Kpz -50 %, Wpa -50 % and +50 %),
     with the controller unchanged (model-based controllers keep their nominal design).
 """
@@ -39,7 +40,11 @@ from bogie_env.params import load_params
 from bogie_env.stability import KMH
 
 DEGRADED = {"Csy-50%": {"Csy": 0.5}, "Kpz-50%": {"Kpz": 0.5}, "Wpa-50%": {"Wpa": 0.5}, "Wpa+50%": {"Wpa": 1.5}}
-AT_REST_M = 1e-6
+# Absolute floor of "at rest": 10 um is rail-roughness level, 1/900 of the flange clearance and
+# 1/50 of the default track irregularity. A learned policy can chatter at the control rate with
+# a micrometre amplitude (SAC does, at 50 Hz and 1.3 um); that is not hunting.
+AT_REST_M = 1e-5
+PARTS = ("critical", "ramp", "effort", "robustness")
 
 
 @dataclass
@@ -196,15 +201,20 @@ def closed_loop_critical_speed(policy, env_config: dict, scales: dict[str, float
     }
 
 
-def ramp_onset(policy, env_config: dict, settings: ProtocolSettings) -> dict:
-    """(b): the env's default ramp over several seeds."""
-    config = _policy_config(env_config, policy)
-    n = settings.ramp_seeds
+def _seeded_task(policy, config: dict, n: int, seed: int) -> HuntingTask:
+    """``n`` episodes seeded ``seed, seed + 1, ...``, reset, with the policy reset to match."""
     task = HuntingTask(n, config)
     rows = np.arange(n)
-    task.seed_rows(rows, [settings.seed + i for i in range(n)])
+    task.seed_rows(rows, [seed + i for i in range(n)])
     task.reset_rows(rows)
     policy.reset(n)
+    return task
+
+
+def ramp_onset(policy, env_config: dict, settings: ProtocolSettings) -> dict:
+    """(b): the env's default ramp over several seeds."""
+    n = settings.ramp_seeds
+    task = _seeded_task(policy, _policy_config(env_config, policy), n, settings.seed)
     done = np.zeros(n, dtype=bool)
     onset = np.full(n, np.nan)
     reached = np.zeros(n)
@@ -238,30 +248,33 @@ def effort(policy, env_config: dict, settings: ProtocolSettings) -> dict:
                                                                      "end_kmh": settings.effort_speed_kmh,
                                                                      "start_kmh_range": None, "end_kmh_range": None}})  # fmt: skip
     n = settings.effort_seeds
-    task = HuntingTask(n, config)
-    rows = np.arange(n)
-    task.seed_rows(rows, [settings.seed + i for i in range(n)])
-    task.reset_rows(rows)
-    policy.reset(n)
+    task = _seeded_task(policy, config, n, settings.seed)
     steps = int(round(settings.effort_duration_s / task.config["dt"]))
     force_sq = np.zeros((n, 4))
     peak = np.zeros((n, 4))
     power = np.zeros((n, 4))
+    rate_sq = np.zeros((n, 4))
     hunted = np.zeros(n, dtype=bool)
+    previous = task.info[:, K.I_FORCE : K.I_FORCE + 4].copy()
     for _ in range(steps):
         task.step(policy.act(task.obs))
         f = task.info[:, K.I_FORCE : K.I_FORCE + 4]
         force_sq += f * f
+        rate_sq += (f - previous) ** 2
+        previous[:] = f
         np.maximum(peak, np.abs(f), out=peak)
         power += task.info[:, K.I_POWER : K.I_POWER + 4]
         hunted |= task.flags[:, 2].astype(bool)
     limits = np.array([task.config["actuators"][name]["max_force"] for name in CHANNELS])
     rms = np.sqrt(force_sq.mean(axis=0) / steps)
+    rms_rate = np.sqrt(rate_sq.mean(axis=0) / steps) / task.config["dt"]
     return {
         "speed_kmh": settings.effort_speed_kmh, "track_rms_m": task.config["track"]["rms"],
         "duration_s": settings.effort_duration_s, "seeds": n,
         "rms_force": {CHANNELS[k]: round(float(rms[k]), 1) for k in range(4)},
         "peak_force": {CHANNELS[k]: round(float(peak[:, k].max()), 1) for k in range(4)},
+        # rms rate of change of the force (N/s or N m/s): chatter and actuator wear
+        "rms_force_rate": {CHANNELS[k]: round(float(rms_rate[k]), 1) for k in range(4)},
         "mean_power_w": {CHANNELS[k]: round(float(power[:, k].mean() / steps), 2) for k in range(4)},
         "limits": {CHANNELS[k]: float(limits[k]) for k in range(4)},
         "within_limits": bool(np.all(peak <= limits + 1e-6)),
@@ -270,7 +283,7 @@ def effort(policy, env_config: dict, settings: ProtocolSettings) -> dict:
 
 
 def evaluate_policy(policy, env_config: dict | None = None, settings: ProtocolSettings | None = None,
-                    parts: tuple[str, ...] = ("critical", "ramp", "effort", "robustness")) -> dict:  # fmt: skip
+                    parts: tuple[str, ...] = PARTS) -> dict:  # fmt: skip
     """The whole protocol for one controller."""
     settings = settings or ProtocolSettings()
     env_config = make_config(env_config)
@@ -282,7 +295,7 @@ def evaluate_policy(policy, env_config: dict | None = None, settings: ProtocolSe
         out["protocol"] = {
             "search_kmh": [settings.v_min_kmh, settings.v_max_kmh], "grid_step_kmh": settings.grid_step_kmh,
             "tol_kmh": settings.tol_kmh, "duration_s": settings.duration_s, "small_offset_m": settings.small_offset_m,
-            "rest_criterion": "oscillation amplitude (half peak-to-peak of y1, y2) over the last 5 s < 1 um or "
+            "rest_criterion": "oscillation amplitude (half peak-to-peak of y1, y2) over the last 5 s < 10 um or "
                               "< 0.5 x its value over 5-10 s, and |y| < 0.5 x flange clearance; perfect track",
         }  # fmt: skip
     if "ramp" in parts:

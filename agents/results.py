@@ -21,8 +21,8 @@ from bogie_env.analysis.plots import EN14363_KMH, plt, save
 from bogie_env.analysis.report import write_text_atomic
 from bogie_env.envs.core import HuntingTask
 
-from .evaluate import ProtocolSettings, _policy_config, evaluate_policy
-from .policies import load_policy
+from .evaluate import PARTS, ProtocolSettings, _merged, _policy_config, evaluate_policy
+from .policies import PRETRAINED_DIR, load_policy
 
 
 def slug(spec: str) -> str:
@@ -60,6 +60,25 @@ def ramp_figure(name: str, passive: tuple, controlled: tuple, path: Path) -> Non
     save(fig, path)
 
 
+EXTENDED_RAMP_END_KMH = 850.0  # the env's top speed
+
+
+def extended_ramp_figure(traces: dict, path: Path) -> None:
+    """Every controller on one ramp to the env's top speed: where each one starts to hunt."""
+    fig, axes = plt.subplots(len(traces), 1, figsize=(9, 1.6 * len(traces) + 0.6), sharex=True, squeeze=False)
+    for ax, (name, (speeds, lateral)) in zip(axes[:, 0], traces.items()):
+        ax.plot(speeds, lateral, lw=0.4, color="tab:red" if name == "passive" else "tab:blue")
+        ax.axvline(EN14363_KMH, color="tab:green", ls=":", lw=1)
+        ax.set_ylabel("y1 (mm)")
+        ax.set_ylim(-12, 12)
+        ax.text(0.01, 0.8, f"{name}: reached {speeds[-1]:.0f} km/h", transform=ax.transAxes, fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("speed (km/h)")
+    axes[0, 0].set_title(f"Ramp 300 -> {EXTENDED_RAMP_END_KMH:.0f} km/h at 1 m/s^2, 0.5 mm track, seed 0")
+    fig.tight_layout()
+    save(fig, path)
+
+
 def _fmt(value, suffix=""):
     if value is None:
         return "-"
@@ -68,56 +87,67 @@ def _fmt(value, suffix=""):
     return f"{value}{suffix}"
 
 
+def _speed_text(entry: dict) -> str:
+    """A critical speed with its bound: "≥" at the top of the search range, "≤" at the bottom."""
+    bounds = entry.get("bounds", {}).values()
+    prefix = "≥ " if bounds and all("at least" in b for b in bounds) else ("≤ " if any("at most" in b for b in bounds) else "")
+    return prefix + _fmt(entry.get("closed_loop_critical_speed_kmh"))
+
+
+def _channels(values: dict, scale: float, digits: int) -> str:
+    return " / ".join(f"{v / scale:.{digits}f}" for v in values.values()) if values else "-"
+
+
 def table(results: list[dict], passive_kmh: float | None) -> str:
+    """Two markdown tables: critical speeds (nominal and degraded), then ramp and effort."""
     lines = [
         "| controller | observations | closed-loop critical speed (km/h) | from small perturbation | from passive limit cycle "
-        "| gain over passive | ramp: reached / hunted | rms force at 400 km/h (kN, kN m) | peak force (kN, kN m) "
-        "| Csy -50 % | Kpz -50 % | Wpa -50 % | Wpa +50 % |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| gain over passive | Csy -50 % | Kpz -50 % | Wpa -50 % | Wpa +50 % |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         bounds = r.get("bounds", {})
 
-        def speed(key, kind):
-            value = r.get(key)
-            at_least = "at least" in bounds.get(kind, "")
-            return ("≥ " if at_least else "") + _fmt(value)
+        def start(key, kind):
+            return ("≥ " if "at least" in bounds.get(kind, "") else "") + _fmt(r.get(key))
 
-        gain = (r["closed_loop_critical_speed_kmh"] - passive_kmh) if passive_kmh is not None else None
-        effort = r.get("effort", {})
-        rms = effort.get("rms_force", {})
-        peak = effort.get("peak_force", {})
-        rms_text = " / ".join(f"{v / 1e3:.2f}" for v in rms.values()) if rms else "-"
-        peak_text = " / ".join(f"{v / 1e3:.1f}" for v in peak.values()) if peak else "-"
-        ramp = r.get("ramp", {})
-        ramp_text = f"{ramp.get('mean_reached_kmh', '-')} / {ramp.get('hunted', '-')} of {len(ramp.get('seeds', []))}" if ramp else "-"
+        value = r.get("closed_loop_critical_speed_kmh")
+        gain = (value - passive_kmh) if passive_kmh is not None and value is not None else None
         robust = r.get("robustness", {})
-
-        def robust_text(name):
-            entry = robust.get(name)
-            if not entry:
-                return "-"
-            b = entry.get("bounds", {})
-            prefix = "≥ " if all("at least" in v for v in b.values()) else ("≤ " if any("at most" in v for v in b.values()) else "")
-            return prefix + _fmt(entry["closed_loop_critical_speed_kmh"])
-
+        degraded = [(_speed_text(robust[name]) if name in robust else "-") for name in ("Csy-50%", "Kpz-50%", "Wpa-50%", "Wpa+50%")]
         lines.append(
-            f"| {r['policy']} | {r['observation_type']} | "
-            f"{('≥ ' if all('at least' in v for v in bounds.values()) else '') + _fmt(r.get('closed_loop_critical_speed_kmh'))} | "
-            f"{speed('from_small_perturbation_kmh', 'small')} | {speed('from_passive_limit_cycle_kmh', 'limit_cycle')} | "
-            f"{_fmt(gain) if gain is not None else '-'} | {ramp_text} | {rms_text} | {peak_text} | "
-            f"{robust_text('Csy-50%')} | {robust_text('Kpz-50%')} | {robust_text('Wpa-50%')} | {robust_text('Wpa+50%')} |"
+            f"| {r['policy']} | {r['observation_type']} | {_speed_text(r)} | "
+            f"{start('from_small_perturbation_kmh', 'small')} | {start('from_passive_limit_cycle_kmh', 'limit_cycle')} | "
+            f"{_fmt(gain) if gain is not None else '-'} | " + " | ".join(degraded) + " |"
+        )
+    lines += [
+        "",
+        "Channels in the order frame lateral (kN) / frame yaw / wheelset 1 yaw / wheelset 2 yaw (kN m).",
+        "",
+        "| controller | ramp: mean speed reached (km/h) / seeds hunted | rms force at 400 km/h | peak force at 400 km/h "
+        "| rms force rate (kN/s, kN m/s) | within limits | ramp to 850 km/h (seed 0): reached |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        ramp, effort = r.get("ramp", {}), r.get("effort", {})
+        ramp_text = f"{ramp['mean_reached_kmh']} / {ramp['hunted']} of {len(ramp['seeds'])}" if ramp else "-"
+        lines.append(
+            f"| {r['policy']} | {ramp_text} | {_channels(effort.get('rms_force', {}), 1e3, 2)} | "
+            f"{_channels(effort.get('peak_force', {}), 1e3, 1)} | {_channels(effort.get('rms_force_rate', {}), 1e3, 0)} | "
+            f"{'yes' if effort.get('within_limits') else ('no' if effort else '-')} | "
+            f"{r['extended_ramp']['reached_kmh'] if 'extended_ramp' in r else '-'} |"
         )
     return "\n".join(lines) + "\n"
 
 
-def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0) -> dict:
+def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
+        settings: ProtocolSettings | None = None, parts: tuple[str, ...] = PARTS) -> dict:  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     json_path = out / "results.json"
     done: dict[str, dict] = {}
     if resume and json_path.is_file():
         done = {r["policy"]: r for r in json.loads(json_path.read_text()).get("policies", [])}
-    settings = ProtocolSettings(seed=seed)
+    settings = settings or ProtocolSettings(seed=seed)
     passive_trace = ramp_trace(load_policy("passive", env_config), env_config, seed)
     results = []
     for spec in policies:
@@ -125,9 +155,10 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
             results.append(done[spec])
             continue
         policy = load_policy(spec, env_config)
-        result = evaluate_policy(policy, env_config, settings)
+        result = evaluate_policy(policy, env_config, settings, parts)
         result["policy"] = spec
-        progress = Path(spec) / "progress.json" if Path(spec).is_dir() else None
+        folder = PRETRAINED_DIR if spec == "pretrained" else Path(spec)
+        progress = folder / "progress.json" if folder.is_dir() else None
         if progress is not None and progress.is_file():
             result["training"] = json.loads(progress.read_text())
         results.append(result)
@@ -135,6 +166,14 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
             ramp_figure(spec, passive_trace, ramp_trace(load_policy(spec, env_config), env_config, seed),
                         out / f"ramp_{slug(spec)}.png")  # fmt: skip
         write_text_atomic(json_path, json.dumps({"policies": results}, indent=2, default=float))
+    extended = _merged(env_config, {"speed": {"end_kmh": EXTENDED_RAMP_END_KMH}})
+    traces = {spec: ramp_trace(load_policy(spec, env_config), extended, seed) for spec in policies}
+    for result in results:
+        speeds = traces[result["policy"]][0]
+        result["extended_ramp"] = {"end_kmh": EXTENDED_RAMP_END_KMH, "reached_kmh": round(float(speeds[-1]), 1),
+                                   "hunted": bool(speeds[-1] < EXTENDED_RAMP_END_KMH - 0.5), "seed": seed}  # fmt: skip
+    extended_ramp_figure(traces, out / "ramp_extended.png")
+    write_text_atomic(json_path, json.dumps({"policies": results}, indent=2, default=float))
     passive = next((r for r in results if r["policy"] == "passive"), None)
-    write_text_atomic(out / "table.md", table(results, passive["closed_loop_critical_speed_kmh"] if passive else None))
+    write_text_atomic(out / "table.md", table(results, passive.get("closed_loop_critical_speed_kmh") if passive else None))
     return {"policies": results}

@@ -176,3 +176,23 @@ def test_cli_evaluate_json_and_bogie_overrides(capsys):
 def test_cli_evaluate_bad_input(capsys, argv, message):
     assert cli_main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_results_writes_json_table_and_plots_and_resumes(tmp_path, monkeypatch, env_config):
+    import agents.results as results
+
+    payload = results.run(["passive", "skyhook"], env_config, tmp_path, settings=FAST, parts=("ramp", "effort"))
+    names = [r["policy"] for r in payload["policies"]]
+    assert names == ["passive", "skyhook"]
+    for name in ("results.json", "table.md", "ramp_skyhook.png", "ramp_extended.png"):
+        assert (tmp_path / name).is_file(), name
+    table = (tmp_path / "table.md").read_text()
+    assert "| passive | sensors |" in table and "| skyhook | sensors |" in table
+    # the passive bogie hunts on the extended ramp; skyhook gets further
+    passive, skyhook = payload["policies"]
+    assert passive["extended_ramp"]["hunted"]
+    assert skyhook["extended_ramp"]["reached_kmh"] > passive["extended_ramp"]["reached_kmh"]
+    # --resume keeps what was done instead of evaluating again
+    monkeypatch.setattr(results, "evaluate_policy", lambda *a, **k: pytest.fail("re-evaluated a finished controller"))
+    again = results.run(["passive", "skyhook"], env_config, tmp_path, resume=True, settings=FAST, parts=("ramp", "effort"))
+    assert [r["ramp"] for r in again["policies"]] == [r["ramp"] for r in payload["policies"]]
