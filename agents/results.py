@@ -94,6 +94,13 @@ def _speed_text(entry: dict) -> str:
     return prefix + _fmt(entry.get("closed_loop_critical_speed_kmh"))
 
 
+def _gain_text(gain: float | None, entry: dict) -> str:
+    if gain is None:
+        return "-"
+    at_least = _speed_text(entry).startswith("≥")
+    return ("≥ " if at_least else "") + _fmt(gain)
+
+
 def _channels(values: dict, scale: float, digits: int) -> str:
     return " / ".join(f"{v / scale:.{digits}f}" for v in values.values()) if values else "-"
 
@@ -118,7 +125,7 @@ def table(results: list[dict], passive_kmh: float | None) -> str:
         lines.append(
             f"| {r['policy']} | {r['observation_type']} | {_speed_text(r)} | "
             f"{start('from_small_perturbation_kmh', 'small')} | {start('from_passive_limit_cycle_kmh', 'limit_cycle')} | "
-            f"{_fmt(gain) if gain is not None else '-'} | " + " | ".join(degraded) + " |"
+            f"{_gain_text(gain, r)} | " + " | ".join(degraded) + " |"
         )
     lines += [
         "",
