@@ -10,10 +10,8 @@ are thin front-ends that differ only in how they reset finished episodes.
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 from typing import Any, Mapping
 
-import numba
 import numpy as np
 from gymnasium import spaces
 
@@ -25,26 +23,10 @@ from . import kernel as K
 from .config import CHANNELS, make_config
 
 KMH = 3.6
-# Below this many rows the step runs on the calling thread only: waking worker threads costs
-# more than the rows, and when another process keeps the cores busy (training beside an
-# evaluation) the barrier can take milliseconds instead of microseconds. Same machine code, so
-# the results are bitwise identical.
-PARALLEL_MIN_ROWS = 32
 # Scales of the full-state observation ("state" type): what counts as 1 for each state.
 STATE_SCALES = np.array(
     [9e-3, 0.1, 1e-3, 0.05, 5e-3, 0.1, 5e-3, 0.1] * 2 + [9e-3, 0.1, 5e-3, 0.05], dtype=float
 )
-
-
-@contextmanager
-def calling_thread_only():
-    """Run numba's parallel loops on the calling thread inside this block."""
-    threads = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(threads)
 
 
 class HuntingTask:
@@ -225,11 +207,7 @@ class HuntingTask:
         a = self.check_actions(actions)
         args = (self.x, self.scal, self.act, self.delay, a, self.P, self.cfg, self.track.values, self.obs, self.reward,
                 self.flags, self.info)  # fmt: skip
-        if self.num_envs >= PARALLEL_MIN_ROWS:
-            K.task_step(*args)
-        else:
-            with calling_thread_only():
-                K.task_step(*args)
+        K.task_step(*args)
         self._add_noise(np.arange(self.num_envs))
 
     def _add_noise(self, rows: np.ndarray) -> None:

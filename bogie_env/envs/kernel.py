@@ -68,7 +68,9 @@ def _clip(value, bound):
     return min(max(value, -bound), bound)
 
 
-@njit(cache=True, inline="always")
+# Not inlined at numba level: both batch loops below call this one compilation of the row, so
+# a row's arithmetic is the same whichever loop runs it.
+@njit(cache=True, fastmath=FASTMATH)
 def _task_row(n, x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info, work):
     tmp20 = work[WORK_SIZE : WORK_SIZE + 20]
     q4 = work[WORK_SIZE + 20 : WORK_SIZE + 24]
@@ -210,11 +212,18 @@ def _observe(n, x, v1, p, yt2, u_end, u_max, cfg, obs, tmp20, q4):
                 m += 1
 
 
-# One compiled kernel for every batch size, N = 1 included: the single env, the Gymnasium
-# vector env and the SB3 VecEnv then run identical machine code (fastmath may reorder
-# arithmetic differently in differently compiled variants, which would break bitwise equality).
+# Two compiled loops over the same inlined row code. The parallel one serves large batches;
+# below PARALLEL_MIN_ROWS rows the serial one runs on the calling thread, because waking the
+# worker threads costs more than a few rows and, when another process keeps the cores busy
+# (training beside an evaluation), the OpenMP barrier can take milliseconds instead of
+# microseconds. fastmath could in principle order the row arithmetic differently in the two
+# compilations; tests/test_envs.py checks that a row's trajectory is bitwise the same in a
+# 4-row (serial) and a 64-row (parallel) batch.
+PARALLEL_MIN_ROWS = 32
+
+
 @njit(cache=True, fastmath=FASTMATH, parallel=True)
-def task_step(x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info):
+def task_step_parallel(x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info):
     n_rows = x.shape[0]
     n_chunks = min(n_rows, N_CHUNKS)
     for c in prange(n_chunks):
@@ -222,6 +231,20 @@ def task_step(x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, 
         start, stop = chunk_bounds(n_rows, n_chunks, c)
         for n in range(start, stop):
             _task_row(n, x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info, work)
+
+
+@njit(cache=True, fastmath=FASTMATH)
+def task_step_serial(x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info):
+    work = np.empty(WORK_SIZE + 50)
+    for n in range(x.shape[0]):
+        _task_row(n, x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info, work)
+
+
+def task_step(x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info) -> None:
+    """Advance every row by one env step (actions -> actuators -> RK4 interval -> observation,
+    reward, hunting detector, flags), in place."""
+    kernel = task_step_parallel if x.shape[0] >= PARALLEL_MIN_ROWS else task_step_serial
+    kernel(x, scal, act, delay, action, P, cfg, profile, obs, reward, flags, info)
 
 
 @njit(cache=True, fastmath=FASTMATH)
