@@ -14,9 +14,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev,render]'
 	touch $(STAMP)
 
-## main job: the nominal linear critical speed
+## main job: the passive bogie's linear critical speed, then the shipped PPO controller against it
 demo: $(STAMP)
 	$(BIN)/bogie critical-speed
+	$(BIN)/bogie evaluate --policy passive --policy pretrained --parts critical
 
 ## quick test suite (slow tests skipped)
 test: $(STAMP)

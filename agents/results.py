@@ -87,7 +87,7 @@ def _fmt(value, suffix=""):
     return f"{value}{suffix}"
 
 
-def _speed_text(entry: dict) -> str:
+def speed_text(entry: dict) -> str:
     """A critical speed with its bound: "≥" at the top of the search range, "≤" at the bottom."""
     bounds = entry.get("bounds", {}).values()
     prefix = "≥ " if bounds and all("at least" in b for b in bounds) else ("≤ " if any("at most" in b for b in bounds) else "")
@@ -97,7 +97,7 @@ def _speed_text(entry: dict) -> str:
 def _gain_text(gain: float | None, entry: dict) -> str:
     if gain is None:
         return "-"
-    at_least = _speed_text(entry).startswith("≥")
+    at_least = speed_text(entry).startswith("≥")
     return ("≥ " if at_least else "") + _fmt(gain)
 
 
@@ -121,9 +121,9 @@ def table(results: list[dict], passive_kmh: float | None) -> str:
         value = r.get("closed_loop_critical_speed_kmh")
         gain = (value - passive_kmh) if passive_kmh is not None and value is not None else None
         robust = r.get("robustness", {})
-        degraded = [(_speed_text(robust[name]) if name in robust else "-") for name in ("Csy-50%", "Kpz-50%", "Wpa-50%", "Wpa+50%")]
+        degraded = [(speed_text(robust[name]) if name in robust else "-") for name in ("Csy-50%", "Kpz-50%", "Wpa-50%", "Wpa+50%")]
         lines.append(
-            f"| {r['policy']} | {r['observation_type']} | {_speed_text(r)} | "
+            f"| {r['policy']} | {r['observation_type']} | {speed_text(r)} | "
             f"{start('from_small_perturbation_kmh', 'small')} | {start('from_passive_limit_cycle_kmh', 'limit_cycle')} | "
             f"{_gain_text(gain, r)} | " + " | ".join(degraded) + " |"
         )

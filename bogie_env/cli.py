@@ -366,7 +366,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if not parts or set(parts) - allowed:
         raise ConfigError(f"--parts {args.parts!r}: allowed parts are {', '.join(sorted(allowed))}")
     settings = ProtocolSettings(seed=args.seed)
-    results = [evaluate_policy(load_policy(spec, env_config), env_config, settings, parts) for spec in args.policy]
+    results = []
+    for spec in args.policy:
+        result = evaluate_policy(load_policy(spec, env_config), env_config, settings, parts)
+        result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
+        results.append(result)
     payload = {"policies": results}
     if args.out:
         from pathlib import Path
@@ -380,8 +384,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         for r in results:
             line = f"{r['policy']:>12s}:"
             if "closed_loop_critical_speed_kmh" in r:
-                line += (f" closed-loop critical speed {r['closed_loop_critical_speed_kmh']} km/h "
-                         f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']})")  # fmt: skip
+                from agents.results import speed_text
+
+                line += (f" closed-loop critical speed {speed_text(r)} km/h "
+                         f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']}; "
+                         f"search {r['protocol']['search_kmh'][0]:g}-{r['protocol']['search_kmh'][1]:g} km/h)")  # fmt: skip
             if "ramp" in r:
                 line += f"; ramp reached {r['ramp']['mean_reached_kmh']} km/h (hunted {r['ramp']['hunted']}/{len(r['ramp']['seeds'])})"
             print(line)
