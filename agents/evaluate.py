@@ -25,7 +25,6 @@ For each controller (``bogie evaluate --policy NAME|PATH --json``):
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, field
 
@@ -34,16 +33,12 @@ import numpy as np
 from bogie_env.analysis.bifurcation import fixed_speed_amplitudes
 from bogie_env.dynamics import N_STATES, P_DELTA, BogieModel, state_index
 from bogie_env.envs import kernel as K
-from bogie_env.envs.config import CHANNELS, make_config
+from bogie_env.envs.config import CHANNELS, MAX_SPEED_KMH, make_config, merge_config
 from bogie_env.envs.core import HuntingTask
 from bogie_env.params import load_params
 from bogie_env.stability import KMH
 
 DEGRADED = {"Csy-50%": {"Csy": 0.5}, "Kpz-50%": {"Kpz": 0.5}, "Wpa-50%": {"Wpa": 0.5}, "Wpa+50%": {"Wpa": 1.5}}
-# Absolute floor of "at rest": 10 um is rail-roughness level, 1/900 of the flange clearance and
-# 1/50 of the default track irregularity. A learned policy can chatter at the control rate with
-# a micrometre amplitude (SAC does, at 50 Hz and 1.3 um); that is not hunting.
-AT_REST_M = 1e-5
 PARTS = ("critical", "ramp", "effort", "robustness")
 
 
@@ -55,6 +50,10 @@ class ProtocolSettings:
     tol_kmh: float = 1.0
     duration_s: float = 40.0
     small_offset_m: float = 1e-3
+    # absolute floor of "at rest": 10 um is rail-roughness level, 1/900 of the flange clearance
+    # and 1/50 of the default track irregularity. A learned policy can chatter at the control
+    # rate with a micrometre amplitude (SAC does, at 50 Hz and 1.3 um); that is not hunting.
+    at_rest_m: float = 1e-5
     ramp_seeds: int = 5
     effort_speed_kmh: float = 400.0
     effort_duration_s: float = 60.0
@@ -63,18 +62,8 @@ class ProtocolSettings:
     seed: int = 0
 
 
-def _merged(env_config: dict, update: dict) -> dict:
-    out = copy.deepcopy(env_config)
-    for key, value in update.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict) and key not in ("bogie_overrides", "randomize"):
-            out[key] = _merged(out[key], value)
-        else:
-            out[key] = value
-    return out
-
-
 def _policy_config(env_config: dict, policy) -> dict:
-    return _merged(env_config, {"observation": {"type": getattr(policy, "observation_type", "sensors")}})
+    return merge_config(env_config, {"observation": {"type": getattr(policy, "observation_type", "sensors")}})
 
 
 class LimitCycleStarts:
@@ -98,8 +87,8 @@ class LimitCycleStarts:
     def _fill(self, model: BogieModel, key: tuple, speeds_kmh: np.ndarray) -> None:
         """Run the passive bogie from 15 mm offsets at a ladder of speeds; each requested speed
         takes the cycle at the lowest ladder speed at or above it that has one."""
-        ladder = np.unique(np.concatenate([speeds_kmh, np.arange(np.ceil(speeds_kmh.min() / 10) * 10, 860.0, 10.0)]))
-        ladder = ladder[ladder <= 850.0]
+        ladder = np.unique(np.concatenate([speeds_kmh, np.arange(np.ceil(speeds_kmh.min() / 10) * 10, MAX_SPEED_KMH + 10.0, 10.0)]))
+        ladder = ladder[ladder <= MAX_SPEED_KMH]
         x0 = np.repeat(model.equilibrium(ladder[0] / KMH)[None], ladder.size, axis=0)
         x0[:, [state_index("y1"), state_index("y2"), state_index("yb")]] += 0.015
         amplitude, final = fixed_speed_amplitudes(model, ladder / KMH, x0, duration=40.0)
@@ -122,7 +111,7 @@ def fixed_speed_trials(
 ) -> np.ndarray:
     """Run one row per (speed, kind); True where the bogie returned to rest."""
     speeds_kmh = np.asarray(speeds_kmh, dtype=float)
-    config = _merged(_policy_config(env_config, policy), {
+    config = merge_config(_policy_config(env_config, policy), {
         "speed": {"start_kmh": settings.v_min_kmh, "end_kmh": settings.v_max_kmh, "accel": 0.0,
                   "start_kmh_range": None, "end_kmh_range": None, "accel_range": None},
         "track": {"rms": 0.0}, "initial_perturbation": 0.0, "randomize": {},
@@ -164,7 +153,7 @@ def fixed_speed_trials(
     early = 0.5 * (high["early"] - low["early"]).max(axis=1)
     late = 0.5 * (high["late"] - low["late"]).max(axis=1)
     delta = task.P[:, P_DELTA]
-    rest = ((late < AT_REST_M) | (late < 0.5 * early)) & (largest < 0.5 * delta) & ~blown
+    rest = ((late < settings.at_rest_m) | (late < 0.5 * early)) & (largest < 0.5 * delta) & ~blown
     return rest
 
 
@@ -244,7 +233,7 @@ def ramp_onset(policy, env_config: dict, settings: ProtocolSettings) -> dict:
 
 def effort(policy, env_config: dict, settings: ProtocolSettings) -> dict:
     """(c): actuator effort at a fixed speed above the passive critical speed, irregular track."""
-    config = _merged(_policy_config(env_config, policy), {"speed": {"accel": 0.0, "start_kmh": settings.effort_speed_kmh,
+    config = merge_config(_policy_config(env_config, policy), {"speed": {"accel": 0.0, "start_kmh": settings.effort_speed_kmh,
                                                                      "end_kmh": settings.effort_speed_kmh,
                                                                      "start_kmh_range": None, "end_kmh_range": None}})  # fmt: skip
     n = settings.effort_seeds
@@ -295,7 +284,7 @@ def evaluate_policy(policy, env_config: dict | None = None, settings: ProtocolSe
         out["protocol"] = {
             "search_kmh": [settings.v_min_kmh, settings.v_max_kmh], "grid_step_kmh": settings.grid_step_kmh,
             "tol_kmh": settings.tol_kmh, "duration_s": settings.duration_s, "small_offset_m": settings.small_offset_m,
-            "rest_criterion": "oscillation amplitude (half peak-to-peak of y1, y2) over the last 5 s < 10 um or "
+            "rest_criterion": f"oscillation amplitude (half peak-to-peak of y1, y2) over the last 5 s < {settings.at_rest_m * 1e6:g} um or "
                               "< 0.5 x its value over 5-10 s, and |y| < 0.5 x flange clearance; perfect track",
         }  # fmt: skip
     if "ramp" in parts:

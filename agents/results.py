@@ -19,9 +19,10 @@ import numpy as np
 
 from bogie_env.analysis.plots import EN14363_KMH, plt, save
 from bogie_env.analysis.report import write_text_atomic
+from bogie_env.envs.config import MAX_SPEED_KMH, merge_config
 from bogie_env.envs.core import HuntingTask
 
-from .evaluate import PARTS, ProtocolSettings, _merged, _policy_config, evaluate_policy
+from .evaluate import PARTS, ProtocolSettings, _policy_config, evaluate_policy
 from .policies import PRETRAINED_DIR, load_policy
 
 
@@ -60,7 +61,7 @@ def ramp_figure(name: str, passive: tuple, controlled: tuple, path: Path) -> Non
     save(fig, path)
 
 
-EXTENDED_RAMP_END_KMH = 850.0  # the env's top speed
+EXTENDED_RAMP_END_KMH = MAX_SPEED_KMH
 
 
 def extended_ramp_figure(traces: dict, path: Path) -> None:
@@ -132,7 +133,7 @@ def table(results: list[dict], passive_kmh: float | None) -> str:
         "Channels in the order frame lateral (kN) / frame yaw / wheelset 1 yaw / wheelset 2 yaw (kN m).",
         "",
         "| controller | ramp: mean speed reached (km/h) / seeds hunted | rms force at 400 km/h | peak force at 400 km/h "
-        "| rms force rate (kN/s, kN m/s) | within limits | ramp to 850 km/h (seed 0): reached |",
+        f"| rms force rate (kN/s, kN m/s) | within limits | ramp to {EXTENDED_RAMP_END_KMH:g} km/h (seed 0): reached |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in results:
@@ -173,7 +174,7 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
             ramp_figure(spec, passive_trace, ramp_trace(load_policy(spec, env_config), env_config, seed),
                         out / f"ramp_{slug(spec)}.png")  # fmt: skip
         write_text_atomic(json_path, json.dumps({"policies": results}, indent=2, default=float))
-    extended = _merged(env_config, {"speed": {"end_kmh": EXTENDED_RAMP_END_KMH}})
+    extended = merge_config(env_config, {"speed": {"end_kmh": EXTENDED_RAMP_END_KMH}})
     traces = {spec: ramp_trace(load_policy(spec, env_config), extended, seed) for spec in policies}
     for result in results:
         speeds = traces[result["policy"]][0]

@@ -13,7 +13,6 @@ from bogie_env.analysis.root_locus import root_locus, track_modes
 from bogie_env.analysis.sensitivity import one_parameter, two_parameter
 from bogie_env.cli import main as cli_main
 from bogie_env.dynamics import BogieModel
-from bogie_env.params import ConfigError
 from bogie_env.stability import critical_speed
 
 

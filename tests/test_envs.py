@@ -10,7 +10,6 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import bogie_env  # noqa: F401  (registers the ids)
-from bogie_env.envs import kernel as K
 from bogie_env.envs.config import make_config
 from bogie_env.envs.core import HuntingTask
 from bogie_env.envs.hunting_env import BogieHuntingEnv

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from bogie_env.dynamics import N_STATES, state_index
+from bogie_env.dynamics import state_index
 from bogie_env.integrate import (
     STATUS_NONFINITE,
     STATUS_OK,

@@ -4,9 +4,9 @@ the critical-speed search, and agreement of eigenvalues with time-domain simulat
 import numpy as np
 import pytest
 
-from bogie_env.dynamics import N_STATES, VERTICAL_STATES, BogieModel, state_index
+from bogie_env.dynamics import state_index
 from bogie_env.integrate import advance_batch_kernel, stable_substep
-from bogie_env.stability import KMH, critical_speed, linearize
+from bogie_env.stability import KMH, critical_speed
 
 
 @pytest.mark.parametrize("speed", [12.0, 57.3, 111.1, 230.0])

@@ -33,6 +33,10 @@ _ACTUATOR_DEFAULTS = {
 MAX_DELAY_STEPS = 10
 
 
+MIN_SPEED_KMH = 30.0  # the env's speed range; above 850 km/h the model is not meant to be used
+MAX_SPEED_KMH = 850.0
+
+
 def default_config() -> dict[str, Any]:
     """The full default configuration; every key is documented in ``BogieHuntingEnv``."""
     return {
@@ -69,6 +73,12 @@ def passive_actuators() -> dict[str, Any]:
 
 def semi_active_actuators() -> dict[str, Any]:
     return {name: {**spec, "mode": "semi_active"} for name, spec in _ACTUATOR_DEFAULTS.items()}
+
+
+def merge_config(base: dict, update: Mapping) -> dict:
+    """``base`` (a full config) with ``update`` merged in; unknown keys are errors, nothing is
+    re-validated (call :func:`make_config` for that)."""
+    return _merge(base, update, "")
 
 
 def _merge(base: dict, update: Mapping, path: str) -> dict:
@@ -112,11 +122,11 @@ def validate(config: dict) -> dict:
     c = copy.deepcopy(config)
     c["dt"] = _number("dt", c["dt"], 0.01, 0.1)
     sp = c["speed"]
-    sp["start_kmh"] = _number("speed.start_kmh", sp["start_kmh"], 30.0, 850.0)
-    sp["end_kmh"] = _number("speed.end_kmh", sp["end_kmh"], 30.0, 850.0)
+    sp["start_kmh"] = _number("speed.start_kmh", sp["start_kmh"], MIN_SPEED_KMH, MAX_SPEED_KMH)
+    sp["end_kmh"] = _number("speed.end_kmh", sp["end_kmh"], MIN_SPEED_KMH, MAX_SPEED_KMH)
     sp["accel"] = _number("speed.accel", sp["accel"], 0.0, 10.0)
     for key in ("start_kmh_range", "end_kmh_range"):
-        sp[key] = _range(f"speed.{key}", sp[key], 30.0, 850.0)
+        sp[key] = _range(f"speed.{key}", sp[key], MIN_SPEED_KMH, MAX_SPEED_KMH)
     sp["accel_range"] = _range("speed.accel_range", sp["accel_range"], 0.0, 10.0)
     if sp["end_kmh"] < sp["start_kmh"]:
         raise ConfigError(f"config 'speed.end_kmh' = {sp['end_kmh']:g} must not be below 'speed.start_kmh' = {sp['start_kmh']:g}")

@@ -15,7 +15,7 @@ from typing import Any, Mapping
 import numpy as np
 from gymnasium import spaces
 
-from ..dynamics import N_INPUTS, N_STATES, P_DELTA, BogieModel, coefficient_vector, state_index
+from ..dynamics import N_INPUTS, N_STATES, P_DELTA, BogieModel, state_index
 from ..integrate import channel_damping_jacobian, stable_substep
 from ..params import BogieParams, ConfigError, load_params
 from ..track import alignment_profile, perfect_track
