@@ -163,3 +163,28 @@ def test_reproduce_writes_every_figure_and_the_report(tmp_path):
         assert (out / f"{name}.png").stat().st_size > 10_000
     report = (out / "report.md").read_text()
     assert "427 km/h" in report and "Table 2" in report
+
+
+def test_en14363_quantities_limits_and_mirror_symmetry(paper_model):
+    """ΣY's rms limit is half Prud'homme's (10 kN + P0/3), 30 kN for the 150-kN axle (EN 14363);
+    the guiding forces change sign with the mirrored state; on the limit cycle both quantities
+    are non-zero and below their limits (why the env uses its own criterion)."""
+    import numpy as np
+
+    from bogie_env.analysis.bifurcation import limit_cycle_state
+    from bogie_env.analysis.en14363 import limit_cycle_quantities
+    from bogie_env.dynamics import ANTISYMMETRIC_STATES, N_STATES, guiding_forces_kernel
+
+    (row,) = limit_cycle_quantities(paper_model, np.array([400.0]), duration=2.0)
+    assert row["sum_y_rms_limit_n"] == pytest.approx(30e3)
+    assert 0 < row["sum_y_rms_n"] < row["sum_y_rms_limit_n"]
+    assert 0 < row["frame_accel_rms_m_per_s2"] < row["frame_accel_limit_m_per_s2"]
+    x = limit_cycle_state(paper_model, 400.0)[None]
+    mirror = np.ones(N_STATES)
+    mirror[list(ANTISYMMETRIC_STATES)] = -1.0
+    direct, mirrored = np.empty((1, 2)), np.empty((1, 2))
+    v = np.array([400.0 / 3.6])
+    guiding_forces_kernel(x, v, np.zeros((1, 2)), paper_model.coefficients, direct)
+    guiding_forces_kernel(x * mirror, v, np.zeros((1, 2)), paper_model.coefficients, mirrored)
+    assert np.abs(direct).max() > 1e3
+    np.testing.assert_allclose(mirrored, -direct, rtol=1e-12, atol=1e-9)
