@@ -34,9 +34,13 @@ from scipy.integrate import solve_ivp
 
 from .dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _rhs_row, check_speed, rhs_single_kernel
 
-#: fastmath flags of the stepping kernels: contraction and reciprocal/approximate math,
-#: but not 'nnan'/'ninf', so the kernels' NaN checks stay meaningful.
-FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+#: fastmath flags of the stepping kernels: none (IEEE arithmetic). With 'contract',
+#: 'reassoc', 'arcp' or 'afn', LLVM's vectorised loops and their scalar remainders round
+#: differently, and which iterations take which path depends on the arrays' memory alignment:
+#: the same seed gave last-bit differences, and after 40 s on a limit cycle different phases,
+#: in two clones of the repository at different paths. (And never 'nnan'/'ninf', which would
+#: make the kernels' NaN checks meaningless.)
+FASTMATH: set[str] = set()
 
 STATUS_OK = 0
 STATUS_NONFINITE = 1
