@@ -55,6 +55,21 @@ def bogie_options(func):
     return func
 
 
+def backend_options(func):
+    """--backend/--address: where the work runs (docs/distributed.md)."""
+    func = argument("--address", default=None,
+                    help="Ray cluster to join (HOST:PORT or 'auto'); default: start a local cluster "
+                         "(--backend ray only)")(func)  # fmt: skip
+    func = argument("--backend", choices=("local", "ray"), default="local",
+                    help="local processes (default) or Ray tasks (needs pip install -e '.[distributed]')")(func)  # fmt: skip
+    return func
+
+
+def check_backend_args(args: argparse.Namespace) -> None:
+    if args.address is not None and args.backend != "ray":
+        raise ConfigError(f"--address {args.address!r} needs --backend ray (the local backend runs on this machine)")
+
+
 def json_option(func):
     return argument("--json", action="store_true", help="print one JSON object instead of text")(func)
 
@@ -257,8 +272,12 @@ def cmd_bifurcation(args: argparse.Namespace) -> int:
 @command("sensitivity", "critical speed against one or two parameters, or the whole Section-5 study")
 @json_option
 @argument("--fixed-contact", action="store_true", help="keep the nominal creep coefficients (the paper's convention)")
-@argument("--workers", type=int, default=None, help="processes (default: all cores)")
-@argument("--out", default=None, help="folder for CSV/JSON/figures (with --all)")
+@argument("--chunk-size", type=int, default=None, help="points per task (default 256)")
+@argument("--workers", type=int, default=None,
+          help="local processes, or the CPUs of a local Ray cluster (default: all cores)")
+@argument("--out", default=None,
+          help="folder for CSV/JSON/figures (with --all); finished chunks are kept in OUT/chunks, so a rerun resumes")
+@backend_options
 @argument("--all", action="store_true", help="the full study: 9 curves and 36 pair grids")
 @argument("--scales", action="append", default=[], help="comma-separated scale factors (once per --param)")
 @argument("--param", action="append", default=[], help="parameter to vary (give twice for a 2-D grid)")
@@ -269,14 +288,20 @@ def cmd_sensitivity(args: argparse.Namespace) -> int:
     from .analysis import sensitivity as sens
 
     params = load_params(args.config, args.overrides)
+    check_backend_args(args)
     progress = not args.json
+    distribute = {"backend": args.backend, "address": args.address,
+                  "chunk_size": sens.DEFAULT_CHUNK_SIZE if args.chunk_size is None else args.chunk_size}  # fmt: skip
     if args.all:
         from pathlib import Path
 
+        if args.out:
+            distribute["store_dir"] = Path(args.out) / "chunks"
         start = time.perf_counter()
-        study = sens.full_study(params, fixed_contact=args.fixed_contact, workers=args.workers, progress=progress)
+        study = sens.full_study(params, fixed_contact=args.fixed_contact, workers=args.workers, progress=progress,
+                                **distribute)  # fmt: skip
         elapsed = time.perf_counter() - start
-        payload = {"n_critical_speeds": study.n_points, "wall_time_s": round(elapsed, 3),
+        payload = {"n_critical_speeds": study.n_points, "wall_time_s": round(elapsed, 3), "backend": args.backend,
                    "nominal_critical_speed_kmh": study.nominal_kmh, "table2": study.table2()}  # fmt: skip
         if args.out:
             from .analysis import plots
@@ -300,13 +325,14 @@ def cmd_sensitivity(args: argparse.Namespace) -> int:
         raise ConfigError(f"{len(args.scales)} --scales for {len(args.param)} --param; give at most one per --param")
     scales = [parse_scales(text) for text in args.scales]
     if len(args.param) == 1:
-        curve = sens.one_parameter(params, args.param[0], scales[0] if scales else None, args.fixed_contact, args.workers)
+        curve = sens.one_parameter(params, args.param[0], scales[0] if scales else None, args.fixed_contact, args.workers,
+                                   **distribute)  # fmt: skip
         payload = curve.to_dict()
     else:
         if len(scales) == 1:
             scales = scales * 2
         pair = (scales[0], scales[1]) if scales else (None, None)
-        grid = sens.two_parameter(params, tuple(args.param), pair, args.fixed_contact, args.workers)
+        grid = sens.two_parameter(params, tuple(args.param), pair, args.fixed_contact, args.workers, **distribute)
         payload = grid.to_dict()
     if args.json:
         print_json(payload)

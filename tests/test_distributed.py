@@ -1,0 +1,134 @@
+"""The chunked map (bogie_env.distributed): backends agree bitwise, chunks resume, killed tasks retry.
+
+The Ray tests share one local 2-CPU cluster per module and skip when the optional extra
+(``pip install -e '.[distributed]'``) is not installed."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bogie_env import distributed as dist
+from bogie_env.analysis import sensitivity as sens
+from bogie_env.params import ConfigError
+
+CALLS: list = []
+
+
+def _square_chunk(offset, chunk):
+    CALLS.append(list(chunk))
+    return [offset + x * x for x in chunk]
+
+
+def _die_once(marker_dir, chunk):
+    """Kills its worker process on the first attempt at each chunk (a marker file remembers)."""
+    marker = Path(marker_dir) / f"attempted_{chunk[0]}"
+    if not marker.exists():
+        marker.write_text("1")
+        os._exit(1)
+    return [x + 0.5 for x in chunk]
+
+
+# ---- without Ray ---------------------------------------------------------------------------
+def test_local_map_keeps_chunk_order_and_json_values():
+    chunks = dist.chunked(list(range(10)), 3)
+    assert [len(c) for c in chunks] == [3, 3, 3, 1]
+    out = dist.map_chunks(_square_chunk, chunks, shared=1, workers=1, progress=False)
+    assert out == [[1 + x * x for x in c] for c in chunks]
+
+
+def test_store_resumes_without_recomputing(tmp_path):
+    chunks = dist.chunked(list(range(10)), 4)
+    CALLS.clear()
+    first = dist.map_chunks(_square_chunk, chunks, shared=0, workers=1, progress=False,
+                            store=dist.ChunkStore(tmp_path, {"study": "squares"}))  # fmt: skip
+    assert len(CALLS) == 3
+    folder = next(p for p in tmp_path.iterdir() if p.is_dir())
+    assert sorted(p.name for p in folder.iterdir()) == ["chunk_000000.json", "chunk_000001.json", "chunk_000002.json", "study.json"]
+    (folder / "chunk_000001.json").unlink()  # as if interrupted before the second chunk finished
+    (folder / "chunk_000002.json").write_text('{"index": 2, "res')  # a torn file is recomputed, not trusted
+    CALLS.clear()
+    again = dist.map_chunks(_square_chunk, chunks, shared=0, workers=1, progress=False,
+                            store=dist.ChunkStore(tmp_path, {"study": "squares"}))  # fmt: skip
+    assert again == first
+    assert CALLS == [chunks[1], chunks[2]]
+    # another definition (or other chunks) is another study: nothing is reused
+    CALLS.clear()
+    dist.map_chunks(_square_chunk, chunks, shared=0, workers=1, progress=False,
+                    store=dist.ChunkStore(tmp_path, {"study": "squares", "v": 2}))  # fmt: skip
+    assert len(CALLS) == 3
+    assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_backend_and_chunk_size_are_validated():
+    with pytest.raises(ConfigError, match="backend 'spark'.*allowed: local, ray"):
+        dist.map_chunks(_square_chunk, [[1]], backend="spark")
+    with pytest.raises(ConfigError, match="chunk size 0"):
+        dist.chunked([1, 2], 0)
+    with pytest.raises(ConfigError, match="--backend ray"):
+        dist.map_chunks(_square_chunk, [[1]], address="auto")
+
+
+def test_sensitivity_store_resumes_with_identical_numbers(paper_params, tmp_path):
+    scales = ([0.6, 1.0, 1.4], [0.7, 1.3])
+    fresh = sens.two_parameter(paper_params, ("Csy", "Kpy"), scales, workers=1)
+    stored = sens.two_parameter(paper_params, ("Csy", "Kpy"), scales, workers=1, chunk_size=2, store_dir=tmp_path)
+    files = sorted(tmp_path.rglob("chunk_*.json"))
+    assert len(files) == 3
+    files[0].unlink()
+    resumed = sens.two_parameter(paper_params, ("Csy", "Kpy"), scales, workers=1, chunk_size=2, store_dir=tmp_path)
+    assert fresh.critical_speed_kmh.tobytes() == stored.critical_speed_kmh.tobytes() == resumed.critical_speed_kmh.tobytes()
+    # the bogie is part of the study's key
+    sens.two_parameter(paper_params.scaled(Kpx=1.1), ("Csy", "Kpy"), scales, workers=1, chunk_size=2, store_dir=tmp_path)
+    assert len([p for p in tmp_path.iterdir() if p.is_dir()]) == 2
+
+
+# ---- on a local Ray cluster -----------------------------------------------------------------
+@pytest.fixture(scope="module")
+def ray_cluster():
+    ray = pytest.importorskip("ray")
+    import ray.cloudpickle
+
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers need not import tests/
+    started = not ray.is_initialized()
+    dist.init_ray(None, num_cpus=2)
+    yield ray
+    if started:
+        ray.shutdown()
+
+
+def test_ray_sensitivity_grid_equals_local_bitwise(ray_cluster, paper_params):
+    scales = ([0.5, 0.9, 1.3], [0.6, 1.0, 1.8])
+    local = sens.two_parameter(paper_params, ("Csy", "Kpz"), scales, workers=1)
+    remote = sens.two_parameter(paper_params, ("Csy", "Kpz"), scales, backend="ray", chunk_size=2)
+    assert remote.critical_speed_kmh.tobytes() == local.critical_speed_kmh.tobytes()
+    assert np.isfinite(local.critical_speed_kmh).all()
+
+
+def test_ray_killed_task_is_retried(ray_cluster, tmp_path):
+    out = dist.map_chunks(_die_once, [[1, 2], [3]], shared=str(tmp_path), backend="ray", progress=False, max_retries=2)
+    assert out == [[1.5, 2.5], [3.5]]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["attempted_1", "attempted_3"]
+
+
+def test_ray_killed_task_without_retries_fails(ray_cluster, tmp_path):
+    from ray.exceptions import WorkerCrashedError
+
+    with pytest.raises(WorkerCrashedError):
+        dist.map_chunks(_die_once, [[7]], shared=str(tmp_path), backend="ray", progress=False, max_retries=0)
+
+
+@pytest.mark.slow
+def test_ray_full_study_equals_local_bitwise(ray_cluster, paper_params, tmp_path):
+    local = sens.full_study(paper_params, workers=2, progress=False)
+    remote = sens.full_study(paper_params, progress=False, backend="ray", store_dir=tmp_path)
+    assert local.n_points == remote.n_points == 16065
+    a, b = json.dumps(local.to_dict()), json.dumps(remote.to_dict())
+    assert a == b
+    for g, h in zip(local.grids, remote.grids):
+        assert g.critical_speed_kmh.tobytes() == h.critical_speed_kmh.tobytes()
