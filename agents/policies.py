@@ -3,7 +3,7 @@
 ``load_policy(spec, env_config)`` returns an object with ``observation_type``, ``reset(n, rows)``
 and ``act(obs) -> actions``:
 
-- ``passive``, ``skyhook``, ``lqr``, ``lqg``: :mod:`agents.controllers`;
+- ``passive``, ``skyhook``, ``lqr``, ``lqg``: :mod:`bogie_agents.controllers`;
 - ``pretrained``: the policy shipped in ``agents/pretrained/`` (see docs/results.md);
 - a path to a training run folder (``runs/NAME``) or to an SB3 ``.zip``: the saved model and,
   if present beside it, its ``vecnormalize.pkl`` observation statistics.

@@ -365,7 +365,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 @argument("--config", default=None, help="agent config YAML (default: configs/agents/ALGO.yaml)")
 @argument("--algo", choices=("ppo", "sac", "td3"), default=None)
 def cmd_train(args: argparse.Namespace) -> int:
-    from agents.train import train_from_cli
+    from bogie_agents.train import train_from_cli
 
     summary = train_from_cli(args.algo, args.config, args.out, args.timesteps, args.seed, not args.no_resume,
                              not args.no_progress)  # fmt: skip
@@ -383,8 +383,8 @@ def cmd_train(args: argparse.Namespace) -> int:
           help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip); repeatable")
 @bogie_options
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from agents.evaluate import ProtocolSettings, evaluate_policy
-    from agents.policies import load_policy
+    from bogie_agents.evaluate import ProtocolSettings, evaluate_policy
+    from bogie_agents.policies import load_policy
 
     env_config = env_config_from_args(args)
     parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
@@ -410,7 +410,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         for r in results:
             line = f"{r['policy']:>12s}:"
             if "closed_loop_critical_speed_kmh" in r:
-                from agents.results import speed_text
+                from bogie_agents.results import speed_text
 
                 line += (f" closed-loop critical speed {speed_text(r)} km/h "
                          f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']}; "
@@ -431,7 +431,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def cmd_results(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from agents.results import run
+    from bogie_agents.results import run
 
     payload = run(args.policy, env_config_from_args(args), Path(args.out), args.resume, args.seed)
     print((Path(args.out) / "table.md").read_text())
