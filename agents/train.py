@@ -97,7 +97,7 @@ def make_vec_envs(config: dict, seed: int):
     """Training and evaluation VecEnvs (native batched), normalised and monitored."""
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-    from bogie_env.envs.vector import BogieHuntingSB3VecEnv
+    from .vec_env import BogieHuntingSB3VecEnv
 
     env = VecMonitor(BogieHuntingSB3VecEnv(config["n_envs"], config.get("env") or {}, seed=seed))
     vn = {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, **(config.get("vecnormalize") or {})}

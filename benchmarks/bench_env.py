@@ -19,8 +19,9 @@ import time
 import gymnasium as gym
 import numpy as np
 
+from bogie_agents.vec_env import BogieHuntingSB3VecEnv
 import bogie_env  # noqa: F401
-from bogie_env.envs.vector import BogieHuntingSB3VecEnv, BogieHuntingVectorEnv
+from bogie_env.envs.vector import BogieHuntingVectorEnv
 
 REPEATS = 3
 

@@ -1,6 +1,9 @@
-"""The ``bogie`` command line. Each subcommand is a thin client of the library.
+"""The library's command line. Each subcommand is a thin client of the library.
 
     bogie critical-speed [--config FILE] [--set NAME=VALUE ...] [--json]
+
+The ``bogie`` console script is :mod:`bogie_agents.cli`, which adds the agents' commands
+(train, evaluate, results) to this parser; ``python -m bogie_env.cli`` has the library's alone.
 """
 
 from __future__ import annotations
@@ -353,89 +356,6 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     results = reproduce(args.out, load_params(args.config, args.overrides), workers=args.workers)
     print(f"wrote {args.out}/report.md and figures; timings (s): {results['timings_s']}")
     return 0
-
-
-# ---------------------------------------------------------------------------------
-@command("train", "train an SB3 agent (PPO, SAC, TD3) on the native batched VecEnv; resumes if interrupted")
-@argument("--no-progress", action="store_true", help="no progress bar")
-@argument("--no-resume", action="store_true", help="start afresh even if the run folder has checkpoints")
-@argument("--seed", type=int, default=None, help="override the config's seed")
-@argument("--timesteps", type=int, default=None, help="override the config's total_timesteps")
-@argument("--out", required=True, help="run folder, e.g. runs/ppo")
-@argument("--config", default=None, help="agent config YAML (default: configs/agents/ALGO.yaml)")
-@argument("--algo", choices=("ppo", "sac", "td3"), default=None)
-def cmd_train(args: argparse.Namespace) -> int:
-    from bogie_agents.train import train_from_cli
-
-    summary = train_from_cli(args.algo, args.config, args.out, args.timesteps, args.seed, not args.no_resume,
-                             not args.no_progress)  # fmt: skip
-    print_json(summary)
-    return 0
-
-
-@command("evaluate", "the evaluation protocol: closed-loop critical speed, ramp onset, effort, robustness")
-@json_option
-@argument("--out", default=None, help="write the JSON result here as well (atomically)")
-@argument("--parts", default="critical,ramp,effort,robustness", help="which parts of the protocol to run")
-@argument("--seed", type=int, default=0)
-@argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
-@argument("--policy", action="append", required=True,
-          help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip); repeatable")
-@bogie_options
-def cmd_evaluate(args: argparse.Namespace) -> int:
-    from bogie_agents.evaluate import ProtocolSettings, evaluate_policy
-    from bogie_agents.policies import load_policy
-
-    env_config = env_config_from_args(args)
-    parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
-    allowed = {"critical", "ramp", "effort", "robustness"}
-    if not parts or set(parts) - allowed:
-        raise ConfigError(f"--parts {args.parts!r}: allowed parts are {', '.join(sorted(allowed))}")
-    settings = ProtocolSettings(seed=args.seed)
-    results = []
-    for spec in args.policy:
-        result = evaluate_policy(load_policy(spec, env_config), env_config, settings, parts)
-        result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
-        results.append(result)
-    payload = {"policies": results}
-    if args.out:
-        from pathlib import Path
-
-        from .analysis.report import write_text_atomic
-
-        write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
-    if args.json:
-        print_json(payload)
-    else:
-        for r in results:
-            line = f"{r['policy']:>12s}:"
-            if "closed_loop_critical_speed_kmh" in r:
-                from bogie_agents.results import speed_text
-
-                line += (f" closed-loop critical speed {speed_text(r)} km/h "
-                         f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']}; "
-                         f"search {r['protocol']['search_kmh'][0]:g}-{r['protocol']['search_kmh'][1]:g} km/h)")  # fmt: skip
-            if "ramp" in r:
-                line += f"; ramp reached {r['ramp']['mean_reached_kmh']} km/h (hunted {r['ramp']['hunted']}/{len(r['ramp']['seeds'])})"
-            print(line)
-    return 0
-
-
-@command("results", "evaluate several controllers; write results.json, table.md and ramp plots")
-@argument("--resume", action="store_true", help="keep controllers already in OUT/results.json")
-@argument("--seed", type=int, default=0)
-@argument("--env-config", default=None)
-@argument("--out", required=True, help="output folder, e.g. docs/results")
-@argument("--policy", action="append", required=True, help="as for evaluate; repeatable")
-@bogie_options
-def cmd_results(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from bogie_agents.results import run
-
-    payload = run(args.policy, env_config_from_args(args), Path(args.out), args.resume, args.seed)
-    print((Path(args.out) / "table.md").read_text())
-    return 0 if payload else 1
 
 
 # ---------------------------------------------------------------------------------

@@ -10,7 +10,7 @@ from bogie_agents.controllers import LQGController, LQRController, PassiveContro
 from bogie_agents.evaluate import LimitCycleStarts, ProtocolSettings, closed_loop_critical_speed, evaluate_policy
 from bogie_agents.policies import PRETRAINED_DIR, load_policy, load_sb3_policy
 from bogie_agents.train import load_run_config, train
-from bogie_env.cli import main as cli_main
+from bogie_agents.cli import main as cli_main
 from bogie_env.analysis.bifurcation import nonlinear_critical_speed
 from bogie_env.envs.config import make_config
 from bogie_env.envs.hunting_env import BogieHuntingEnv

@@ -1,14 +1,11 @@
-"""Native batched front-ends: a Gymnasium ``VectorEnv`` and a Stable-Baselines3 ``VecEnv``.
+"""Native batched front-end: a Gymnasium ``VectorEnv``.
 
-Both step every environment in one call of the compiled task kernel; they differ only in
-how finished episodes restart:
-
-- :class:`BogieHuntingVectorEnv` (Gymnasium 1.x, ``AutoresetMode.NEXT_STEP``): an env that
-  terminated or truncated is reset on the *next* ``step`` call, which returns its first
-  observation with reward 0, as Gymnasium's vector wrappers expect.
-- :class:`BogieHuntingSB3VecEnv` (SB3, same-step reset): a finished env is reset within the
-  same ``step_wait``; its last observation is in ``info["terminal_observation"]`` and
-  ``info["TimeLimit.truncated"]`` says whether the episode was cut by the time limit.
+It steps every environment in one call of the compiled task kernel.
+:class:`BogieHuntingVectorEnv` (Gymnasium 1.x, ``AutoresetMode.NEXT_STEP``): an env that
+terminated or truncated is reset on the *next* ``step`` call, which returns its first
+observation with reward 0, as Gymnasium's vector wrappers expect. The Stable-Baselines3
+``VecEnv`` over the same task (same-step reset) is :class:`bogie_agents.vec_env.BogieHuntingSB3VecEnv`,
+so that this module imports neither SB3 nor torch.
 
 For the same seed, sub-env ``i`` follows exactly the trajectory of a single
 ``BogieHuntingEnv`` reset with ``seed + i`` (``tests/test_envs.py``).
@@ -21,7 +18,6 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from . import kernel as K
 from .core import HuntingTask
@@ -131,96 +127,3 @@ class BogieHuntingVectorEnv(VectorEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
-
-
-class BogieHuntingSB3VecEnv(VecEnv):
-    """N bogies in one compiled call; Stable-Baselines3's ``VecEnv`` with same-step reset.
-
-    Infos: each finished env's dict holds ``terminal_observation``, ``TimeLimit.truncated``,
-    ``speed_kmh``, ``onset_speed_kmh`` and ``hunting``; the others are empty (building 4096
-    full dicts per step would dominate the step time). Wrap it in ``VecMonitor`` for episode
-    statistics.
-    """
-
-    def __init__(
-        self,
-        num_envs: int = 1,
-        config: Mapping[str, Any] | str | None = None,
-        max_episode_steps: int | None = None,
-        seed: int | None = None,
-        **overrides: Any,
-    ) -> None:
-        self.task = HuntingTask(num_envs, config, **overrides)
-        self.render_mode = None
-        super().__init__(self.task.num_envs, self.task.observation_space, self.task.action_space)
-        self.max_episode_steps = int(max_episode_steps) if max_episode_steps else self.task.max_episode_steps()
-        self._episode_steps = np.zeros(self.num_envs, dtype=np.int64)
-        self._actions: np.ndarray | None = None
-        self._rng = np.random.default_rng(seed)
-        if seed is not None:
-            self.seed(seed)
-
-    def reset(self):
-        rows = np.arange(self.num_envs)
-        if any(s is not None for s in self._seeds) or not getattr(self, "_seeded", False):
-            self.task.seed_rows(rows, _seeds(list(self._seeds), self.num_envs, self._rng))
-            self._seeded = True
-        options = self._options[0] if self._options and self._options[0] else None
-        self.task.reset_rows(rows, options)
-        self._episode_steps[:] = 0
-        self._reset_seeds()
-        self._reset_options()
-        return self.task.obs.copy()
-
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = actions
-
-    def step_wait(self):
-        self.task.step(self._actions)
-        self._episode_steps += 1
-        terminated = self.task.flags[:, 0].astype(bool)
-        time_limit = self._episode_steps >= self.max_episode_steps
-        truncated = self.task.flags[:, 1].astype(bool) | time_limit
-        dones = terminated | truncated
-        rewards = self.task.reward.astype(np.float32)
-        obs = self.task.obs.copy()
-        infos: list[dict] = [{} for _ in range(self.num_envs)]
-        done_rows = np.nonzero(dones)[0]
-        for i in done_rows:
-            info = info_from_row(self.task, int(i))
-            info["terminal_observation"] = obs[i].copy()
-            info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-            infos[i] = info
-        if done_rows.size:
-            self.task.reset_rows(done_rows)
-            self._episode_steps[done_rows] = 0
-            obs[done_rows] = self.task.obs[done_rows]
-        return obs, rewards, dones, infos
-
-    def close(self) -> None:
-        pass
-
-    # ---- the VecEnv interface for attributes of "sub-envs": one task serves them all --------
-    def _indices(self, indices) -> list[int]:
-        if indices is None:
-            return list(range(self.num_envs))
-        if isinstance(indices, int):
-            return [indices]
-        return list(indices)
-
-    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        value = getattr(self, attr_name) if hasattr(self, attr_name) else getattr(self.task, attr_name)
-        return [value for _ in self._indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
-        method = getattr(self, method_name) if hasattr(self, method_name) else getattr(self.task, method_name)
-        return [method(*method_args, **method_kwargs) for _ in self._indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
-        return [False for _ in self._indices(indices)]
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None for _ in range(self.num_envs)]

@@ -1,0 +1,119 @@
+"""The ``bogie`` command: the library's commands (:mod:`bogie_env.cli`) plus the agents' ones.
+
+    bogie train --algo ppo --config configs/agents/ppo.yaml --out runs/ppo
+    bogie evaluate --policy passive --policy pretrained --json
+    bogie results --policy passive --policy lqr --out results/table
+
+The library stands alone (``python -m bogie_env.cli`` has the analysis commands); this module
+adds train, evaluate and results to the same parser. Training and SB3 policies need the
+``[agents]`` extra; the classical controllers do not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from bogie_env import cli as library_cli
+from bogie_env.analysis.report import write_text_atomic
+from bogie_env.cli import argument, bogie_options, command, env_config_from_args, json_option, print_json
+from bogie_env.params import ConfigError
+
+#: Modules of the ``[agents]`` extra: a missing one is reported with the install command.
+AGENTS_EXTRA = ("stable_baselines3", "torch", "tensorboard", "tqdm", "rich")
+
+
+# ---------------------------------------------------------------------------------
+@command("train", "train an SB3 agent (PPO, SAC, TD3) on the native batched VecEnv; resumes if interrupted")
+@argument("--no-progress", action="store_true", help="no progress bar")
+@argument("--no-resume", action="store_true", help="start afresh even if the run folder has checkpoints")
+@argument("--seed", type=int, default=None, help="override the config's seed")
+@argument("--timesteps", type=int, default=None, help="override the config's total_timesteps")
+@argument("--out", required=True, help="run folder, e.g. runs/ppo")
+@argument("--config", default=None, help="agent config YAML (default: configs/agents/ALGO.yaml)")
+@argument("--algo", choices=("ppo", "sac", "td3"), default=None)
+def cmd_train(args: argparse.Namespace) -> int:
+    from .train import train_from_cli
+
+    summary = train_from_cli(args.algo, args.config, args.out, args.timesteps, args.seed, not args.no_resume,
+                             not args.no_progress)  # fmt: skip
+    print_json(summary)
+    return 0
+
+
+@command("evaluate", "the evaluation protocol: closed-loop critical speed, ramp onset, effort, robustness")
+@json_option
+@argument("--out", default=None, help="write the JSON result here as well (atomically)")
+@argument("--parts", default="critical,ramp,effort,robustness", help="which parts of the protocol to run")
+@argument("--seed", type=int, default=0)
+@argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
+@argument("--policy", action="append", required=True,
+          help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip); repeatable")
+@bogie_options
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from .evaluate import ProtocolSettings, evaluate_policy
+    from .policies import load_policy
+
+    env_config = env_config_from_args(args)
+    parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
+    allowed = {"critical", "ramp", "effort", "robustness"}
+    if not parts or set(parts) - allowed:
+        raise ConfigError(f"--parts {args.parts!r}: allowed parts are {', '.join(sorted(allowed))}")
+    settings = ProtocolSettings(seed=args.seed)
+    results = []
+    for spec in args.policy:
+        result = evaluate_policy(load_policy(spec, env_config), env_config, settings, parts)
+        result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
+        results.append(result)
+    payload = {"policies": results}
+    if args.out:
+        write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
+    if args.json:
+        print_json(payload)
+    else:
+        for r in results:
+            line = f"{r['policy']:>12s}:"
+            if "closed_loop_critical_speed_kmh" in r:
+                from .results import speed_text
+
+                line += (f" closed-loop critical speed {speed_text(r)} km/h "
+                         f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']}; "
+                         f"search {r['protocol']['search_kmh'][0]:g}-{r['protocol']['search_kmh'][1]:g} km/h)")  # fmt: skip
+            if "ramp" in r:
+                line += f"; ramp reached {r['ramp']['mean_reached_kmh']} km/h (hunted {r['ramp']['hunted']}/{len(r['ramp']['seeds'])})"
+            print(line)
+    return 0
+
+
+@command("results", "evaluate several controllers; write results.json, table.md and ramp plots")
+@argument("--resume", action="store_true", help="keep controllers already in OUT/results.json")
+@argument("--seed", type=int, default=0)
+@argument("--env-config", default=None)
+@argument("--out", required=True, help="output folder, e.g. docs/results")
+@argument("--policy", action="append", required=True, help="as for evaluate; repeatable")
+@bogie_options
+def cmd_results(args: argparse.Namespace) -> int:
+    from .results import run
+
+    payload = run(args.policy, env_config_from_args(args), Path(args.out), args.resume, args.seed)
+    print((Path(args.out) / "table.md").read_text())
+    return 0 if payload else 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``bogie`` console script."""
+    try:
+        return library_cli.main(argv)
+    except ModuleNotFoundError as error:
+        if (error.name or "").split(".")[0] not in AGENTS_EXTRA:
+            raise
+        print(f"bogie: error: {error.name} is not installed; it comes with the agents extra: "
+              f"pip install 'bogie-env[agents]'", file=sys.stderr)  # fmt: skip
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
