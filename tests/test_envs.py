@@ -34,9 +34,9 @@ def test_state_observation_passes_checkers():
 
 def test_make_and_make_vec_by_id():
     env = gym.make("bogie_env:Bogie/Hunting-v0")
-    assert env.spec.max_episode_steps > 8000
+    assert env.unwrapped.max_episode_steps > 8000  # the env's own limit: the ramp's length + 10 %
     venv = gym.make_vec("bogie_env:Bogie/Hunting-v0", num_envs=3, vectorization_mode="vector_entry_point")
-    assert isinstance(venv, BogieHuntingVectorEnv) and venv.max_episode_steps == env.spec.max_episode_steps
+    assert isinstance(venv, BogieHuntingVectorEnv) and venv.max_episode_steps == env.unwrapped.max_episode_steps
     obs, info = venv.reset(seed=1)
     assert obs.shape == (3, 11) and info["_speed_kmh"].all()
 

@@ -55,3 +55,60 @@ def test_the_library_cli_has_no_agent_commands_and_the_bogie_script_adds_them():
                           capture_output=True, text=True, timeout=600)  # fmt: skip
     assert done.returncode == 2 and "invalid choice: 'evaluate'" in done.stderr
     assert agents_cli.main is not library_cli.main
+
+
+def test_importing_the_parameters_loads_neither_gymnasium_nor_numba_nor_the_env(tmp_path):
+    loaded = modules_after("import bogie_env.params\nbogie_env.params.load_params()", tmp_path)
+    assert not loaded & {"gymnasium", "numba", "scipy", "stable_baselines3", "torch"}
+
+
+def test_ids_register_whichever_of_bogie_env_and_gymnasium_comes_first(tmp_path):
+    check = (
+        "ids = sorted(i for i in gym.registry if i.startswith('Bogie/'))\n"
+        "assert ids == ['Bogie/Hunting-v0', 'Bogie/HuntingActive-v0', 'Bogie/HuntingPassive-v0', "
+        "'Bogie/HuntingSemiActive-v0', 'Bogie/HuntingSlowRamp-v0'], ids\n"
+        "assert all(isinstance(gym.spec(i).entry_point, str) for i in ids)\n"
+        "assert type(gym.__spec__.loader).__name__ == 'SourceFileLoader'\n"  # the hook left no trace
+    )
+    modules_after("import bogie_env\nimport gymnasium as gym\n" + check, tmp_path)
+    modules_after("import gymnasium as gym\nimport bogie_env\n" + check, tmp_path)
+    # a worker that only imports the package (Ray, RL Zoo's --gym-packages) and then makes by id
+    loaded = modules_after("import bogie_env\nimport gymnasium as gym\ngym.make('Bogie/HuntingPassive-v0')", tmp_path)
+    assert "bogie_env" in loaded
+
+
+def test_a_users_config_merges_into_the_variant():
+    import gymnasium as gym
+
+    env = gym.make("bogie_env:Bogie/HuntingPassive-v0", config={"speed": {"accel": 0.1}})
+    config = env.unwrapped.config
+    assert config["speed"]["accel"] == 0.1
+    assert {spec["mode"] for spec in config["actuators"].values()} == {"off"}
+    assert env.unwrapped.channel_names == ()
+    slow = gym.make("bogie_env:Bogie/HuntingSlowRamp-v0", config={"speed": {"end_kmh": 500.0}}).unwrapped.config
+    assert slow["speed"]["accel"] == 0.1 and slow["speed"]["end_kmh"] == 500.0
+
+
+def test_the_step_limit_follows_the_configured_ramp():
+    import gymnasium as gym
+    from gymnasium.wrappers import TimeLimit
+
+    env = gym.make("bogie_env:Bogie/Hunting-v0", config={"speed": {"end_kmh": 850.0}})
+    ramp_steps = (850.0 - 300.0) / 3.6 / 1.0 / 0.01
+    assert env.unwrapped.max_episode_steps > ramp_steps
+    wrapper = env
+    while wrapper is not env.unwrapped:
+        assert not isinstance(wrapper, TimeLimit) or wrapper._max_episode_steps > ramp_steps
+        wrapper = wrapper.env
+    # the env truncates itself at the end of a short ramp, and at an explicit TimeLimit
+    short = gym.make("bogie_env:Bogie/Hunting-v0", config={"speed": {"start_kmh": 300.0, "end_kmh": 306.0, "accel": 5.0}})
+    short.reset(seed=0)
+    steps, truncated = 0, False
+    while not truncated:
+        _, _, terminated, truncated, info = short.step(short.action_space.sample() * 0)
+        steps += 1
+        assert not terminated and steps < 100
+    assert abs(info["speed_kmh"] - 306.0) < 0.5 and abs(steps - 6.0 / 3.6 / 5.0 / 0.01) <= 2
+    cut = gym.make("bogie_env:Bogie/Hunting-v0", max_episode_steps=5)
+    cut.reset(seed=0)
+    assert [cut.step(cut.action_space.sample() * 0)[3] for _ in range(5)] == [False] * 4 + [True]

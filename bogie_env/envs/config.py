@@ -185,8 +185,22 @@ def validate(config: dict) -> dict:
     return c
 
 
-def make_config(config: Mapping[str, Any] | str | Path | None = None, **overrides: Any) -> dict:
-    """Merge a user config (mapping or YAML path) and keyword overrides into the defaults."""
+#: Named presets behind the registered ids; a user's config merges into its variant's.
+VARIANTS: dict[str, dict[str, Any]] = {
+    "active": {},  # force actuators on all four channels (the default)
+    "passive": {"actuators": passive_actuators()},  # no actuators; the action is ignored
+    "semi_active": {"actuators": semi_active_actuators()},  # semi-active dampers on all four channels
+    "slow_ramp": {"speed": {"accel": 0.1}},  # the paper's ramp, 300 -> 600 km/h in 833 s
+}
+
+
+def make_config(
+    config: Mapping[str, Any] | str | Path | None = None, *, variant: str | None = None, **overrides: Any
+) -> dict:
+    """Merge a variant (a name in :data:`VARIANTS`), then a user config (mapping or YAML path),
+    then keyword overrides into the defaults."""
+    if variant is not None and variant not in VARIANTS:
+        raise ConfigError(f"variant {variant!r} is not known; known variants: {', '.join(VARIANTS)}")
     user: dict = {}
     if isinstance(config, (str, Path)):
         path = Path(config)
@@ -201,6 +215,7 @@ def make_config(config: Mapping[str, Any] | str | Path | None = None, **override
         if not isinstance(config, Mapping):
             raise ConfigError(f"env config must be a mapping or a YAML path; got {type(config).__name__}")
         user = dict(config)
-    merged = _merge(default_config(), user, "")
+    merged = _merge(default_config(), VARIANTS[variant] if variant else {}, "")
+    merged = _merge(merged, user, "")
     merged = _merge(merged, overrides, "")
     return validate(merged)

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from . import kernel as K
-from .config import CHANNELS
+from .config import CHANNELS, make_config
 from .core import HuntingTask
 
 
@@ -100,8 +100,10 @@ class BogieHuntingEnv(gym.Env):
       100 m of track) of either wheelset's displacement relative to the rail exceeds
       `rms_fraction * δ` (0.6 × 9 mm); or the numerics blow up (non-finite state, or a
       displacement beyond `blowup_m` = 0.1 m).
-    - Truncation: the speed reaches the end speed, or `max_episode_steps` (set by the
-      registered ids to the ramp's length plus 10 %).
+    - Truncation: the speed reaches the end speed, or the episode has run for the configured
+      ramp's length plus 10 % (`env.unwrapped.max_episode_steps`; 100,000 steps at fixed speed).
+      The registered ids add no other limit, so it follows the config;
+      `gym.make(..., max_episode_steps=N)` adds a `TimeLimit` of N steps.
 
     ## Info
 
@@ -123,7 +125,12 @@ class BogieHuntingEnv(gym.Env):
     optional per-episode ranges), `track` (alignment rms 0.5 mm over 3-80 m, German high-speed
     spectrum shape), `randomize` (per-episode parameter scale ranges, e.g.
     `{"Csy": [0.5, 1.0]}`), `actuators`, `observation`, `reward`, `hunting`.
-    `reset(options=...)` accepts `start_kmh`, `end_kmh`, `accel` and `params` (scale factors).
+    `reset(options=...)` accepts `start_kmh`, `end_kmh`, `accel` and `params` (scale factors);
+    the step limit is the config's, so a ramp made longer by reset options is truncated there.
+    `variant` names a preset of `bogie_env.envs.config.VARIANTS` that `config` merges into; the
+    registered ids set it: `Bogie/HuntingPassive-v0` (`passive`), `Bogie/HuntingSemiActive-v0`
+    (`semi_active`), `Bogie/HuntingSlowRamp-v0` (`slow_ramp`); `Bogie/Hunting-v0` and its
+    second name `Bogie/HuntingActive-v0` use the defaults.
 
     ## Version History
 
@@ -136,11 +143,14 @@ class BogieHuntingEnv(gym.Env):
         self,
         config: Mapping[str, Any] | str | None = None,
         render_mode: str | None = None,
+        variant: str | None = None,
         **overrides: Any,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r} is not allowed; allowed: {self.metadata['render_modes']}")
-        self.task = HuntingTask(1, config, **overrides)
+        self.task = HuntingTask(1, make_config(config, variant=variant, **overrides))
+        self.max_episode_steps = self.task.max_episode_steps()
+        self._episode_steps = 0
         self.action_space = self.task.action_space
         self.observation_space = self.task.observation_space
         self.render_mode = render_mode
@@ -160,17 +170,20 @@ class BogieHuntingEnv(gym.Env):
             self.task.seed_rows(np.array([0]), [int(self.np_random.integers(2**63))])
             self._seeded = True
         self.task.reset_rows(np.array([0]), options)
+        self._episode_steps = 0
         if self.render_mode == "human":
             self.render()
         return self.task.obs[0].copy(), info_from_row(self.task, 0)
 
     def step(self, action):
         self.task.step(action)
+        self._episode_steps += 1
         flags = self.task.flags[0]
         obs = self.task.obs[0].copy()
+        truncated = bool(flags[1]) or self._episode_steps >= self.max_episode_steps
         if self.render_mode == "human":
             self.render()
-        return obs, float(self.task.reward[0]), bool(flags[0]), bool(flags[1]), info_from_row(self.task, 0)
+        return obs, float(self.task.reward[0]), bool(flags[0]), truncated, info_from_row(self.task, 0)
 
     def render(self):
         if self.render_mode is None:

@@ -20,6 +20,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from . import kernel as K
+from .config import make_config
 from .core import HuntingTask
 from .hunting_env import info_from_row
 
@@ -58,8 +59,9 @@ def batched_infos(task: HuntingTask) -> dict[str, np.ndarray]:
 class BogieHuntingVectorEnv(VectorEnv):
     """N bogies in one compiled call; Gymnasium's ``VectorEnv`` with NEXT_STEP autoreset.
 
-    Made by ``gym.make_vec("Bogie/Hunting-v0", num_envs=N, vectorization_mode="vector_entry_point")``,
-    which passes ``max_episode_steps``; this class enforces that limit itself.
+    Made by ``gym.make_vec("Bogie/Hunting-v0", num_envs=N, vectorization_mode="vector_entry_point")``.
+    It truncates episodes itself: at the end of the ramp, or after ``max_episode_steps``
+    (default: the configured ramp's length plus 10 %).
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"], "render_fps": 50}
@@ -70,9 +72,10 @@ class BogieHuntingVectorEnv(VectorEnv):
         config: Mapping[str, Any] | str | None = None,
         max_episode_steps: int | None = None,
         render_mode: str | None = None,
+        variant: str | None = None,
         **overrides: Any,
     ) -> None:
-        self.task = HuntingTask(num_envs, config, **overrides)
+        self.task = HuntingTask(num_envs, make_config(config, variant=variant, **overrides))
         self.num_envs = self.task.num_envs
         self.single_action_space = self.task.action_space
         self.single_observation_space = self.task.observation_space
