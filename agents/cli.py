@@ -3,9 +3,10 @@
     bogie train --algo ppo --config configs/agents/ppo.yaml --out runs/ppo
     bogie evaluate --policy passive --policy pretrained --json
     bogie results --policy passive --policy lqr --out results/table
+    bogie tune --algo ppo --trials 4 --out runs/tune_ppo          (needs the [distributed] extra)
 
 The library stands alone (``python -m bogie_env.cli`` has the analysis commands); this module
-adds train, evaluate and results to the same parser. Training and SB3 policies need the
+adds train, tune, evaluate and results to the same parser. Training and SB3 policies need the
 ``[agents]`` extra; the classical controllers do not.
 """
 
@@ -41,6 +42,28 @@ def cmd_train(args: argparse.Namespace) -> int:
     summary = train_from_cli(args.algo, args.config, args.out, args.timesteps, args.seed, not args.no_resume,
                              not args.no_progress)  # fmt: skip
     print_json(summary)
+    return 0
+
+
+@command("tune", "hyperparameter search for an SB3 agent (Ray Tune with Optuna); resumable; writes the best config")
+@argument("--n-envs", type=int, default=None, help="override the config's n_envs for the trials")
+@argument("--seed", type=int, default=0, help="training and sampler seed")
+@argument("--concurrent", type=int, default=None, help="trials at once (default: the cluster's CPUs)")
+@argument("--address", default=None, help="Ray cluster to join (HOST:PORT or 'auto'); default: a local cluster")
+@argument("--write-config", default=None, help="where to write the best config (default: configs/agents/ALGO_tuned.yaml)")
+@argument("--episodes", type=int, default=4, help="evaluation episodes that score each trial")
+@argument("--trial-time-s", type=float, default=300.0, help="wall-time cap of one trial's training (s)")
+@argument("--timesteps", type=int, default=100_000, help="training steps per trial")
+@argument("--trials", type=int, default=4, help="trials of a new experiment (a restored one keeps its own)")
+@argument("--out", required=True, help="experiment folder, e.g. runs/tune_ppo (rerun to resume)")
+@argument("--config", default=None, help="agent config YAML to start from (default: configs/agents/ALGO.yaml)")
+@argument("--algo", choices=("ppo", "sac", "td3"), default="ppo")
+def cmd_tune(args: argparse.Namespace) -> int:
+    from .tune import tune_agent
+
+    summary = tune_agent(args.algo, args.out, args.trials, args.timesteps, args.trial_time_s, args.episodes, args.config,
+                         args.write_config, args.address, args.concurrent, args.seed, args.n_envs)  # fmt: skip
+    print_json({key: summary[key] for key in ("algo", "env_id", "experiment", "restored", "trials_finished", "best", "config")})
     return 0
 
 

@@ -132,3 +132,49 @@ def test_ray_full_study_equals_local_bitwise(ray_cluster, paper_params, tmp_path
     assert a == b
     for g, h in zip(local.grids, remote.grids):
         assert g.critical_speed_kmh.tobytes() == h.critical_speed_kmh.tobytes()
+
+
+# ---- bogie tune --------------------------------------------------------------------------------
+def test_tune_trial_config_keeps_the_agent_config_and_bounds_the_budget(tmp_path):
+    from bogie_agents.train import load_run_config
+    from bogie_agents.tune import SEARCH_SPACES, task_config, task_id, trial_config, write_best_config
+
+    assert task_id() == "Bogie/Hunting-v0"  # v1 is taken first once it is registered
+    base = load_run_config(None, "ppo")
+    base.pop("source")
+    assert set(SEARCH_SPACES["ppo"]) <= set(base["hyperparams"])  # only keys the config already has
+    trial = trial_config(base, {"learning_rate": 1e-4, "gamma": 0.98}, 5000, 60.0)
+    assert trial["total_timesteps"] == 5000 and trial["max_wall_time_s"] == 60.0
+    assert trial["hyperparams"]["learning_rate"] == 1e-4 and trial["hyperparams"]["n_steps"] == base["hyperparams"]["n_steps"]
+    assert base["hyperparams"]["learning_rate"] == 0.0003  # the base is not modified
+    assert task_config(base, "Bogie/Hunting-v0")["env"] == base["env"]
+    best = {"hyperparams": {"learning_rate": 1e-4, "gamma": 0.98}, "mean_return": 12.5, "timesteps": 5000}
+    path = write_best_config(base, best, tmp_path / "ppo_tuned.yaml", "Bogie/Hunting-v0", 2, tmp_path)
+    written = load_run_config(path, "ppo")
+    assert written["hyperparams"]["learning_rate"] == 1e-4 and written["total_timesteps"] == base["total_timesteps"]
+
+
+def test_tune_rejects_bad_budgets():
+    from bogie_agents.tune import check_budget
+
+    with pytest.raises(ConfigError, match="--trials = 0"):
+        check_budget(0, 1000, None, 2)
+    with pytest.raises(ConfigError, match="--trial-time-s = -1"):
+        check_budget(2, 1000, -1.0, 2)
+
+
+@pytest.mark.slow
+def test_tune_two_trials_write_a_trainable_config_and_restore(ray_cluster, tmp_path):
+    from bogie_agents.train import load_run_config
+    from bogie_agents.tune import tune_agent
+
+    kwargs = dict(trials=2, timesteps=2048, trial_time_s=120.0, episodes=1, write_config=tmp_path / "ppo_tuned.yaml",
+                  n_envs=8, concurrent=2)  # fmt: skip
+    summary = tune_agent("ppo", tmp_path / "exp", **kwargs)
+    assert summary["trials_finished"] == 2 and not summary["restored"]
+    assert len({json.dumps(t["hyperparams"], sort_keys=True) for t in summary["trials"]}) == 2
+    config = load_run_config(tmp_path / "ppo_tuned.yaml", "ppo")
+    assert config["hyperparams"]["learning_rate"] == summary["best"]["hyperparams"]["learning_rate"]
+    assert summary["best"]["mean_return"] == max(t["mean_return"] for t in summary["trials"])
+    again = tune_agent("ppo", tmp_path / "exp", **kwargs)  # the finished experiment is restored, not rerun
+    assert again["restored"] and again["best"] == summary["best"]
