@@ -10,7 +10,7 @@ the trials as tasks (one CPU each, as many at once as the cluster has CPUs, or
 ``--concurrent``); ``OptunaSearch`` proposes each next trial from the finished ones.
 
 The task is the newest registered version of ``Bogie/Hunting`` (v1 once it exists, else v0); its
-registered config is merged under the agent config's ``env`` and ``eval_env``.
+registered variant and config are merged under the agent config's ``env`` and ``eval_env``.
 
 Resume: the experiment lives in ``OUT/experiment`` (Tune's state, with the searcher's) and each
 trial's SB3 run in ``OUT/trials/<trial id>`` (with checkpoints). Re-running the same command
@@ -85,7 +85,10 @@ def task_config(base: dict, env_id: str) -> dict:
     """The agent config with the task's registered env config merged under ``env`` and ``eval_env``."""
     import gymnasium as gym
 
-    registered = (gym.registry[env_id].kwargs or {}).get("config") or {}
+    from bogie_env.envs.config import VARIANTS
+
+    kwargs = gym.registry[env_id].kwargs or {}
+    registered = _deep_update(VARIANTS[kwargs["variant"]] if kwargs.get("variant") else {}, kwargs.get("config") or {})
     config = copy.deepcopy(base)
     for key in ("env", "eval_env"):
         config[key] = _deep_update(registered, config.get(key) or {})

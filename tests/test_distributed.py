@@ -123,6 +123,26 @@ def test_ray_killed_task_without_retries_fails(ray_cluster, tmp_path):
         dist.map_chunks(_die_once, [[7]], shared=str(tmp_path), backend="ray", progress=False, max_retries=0)
 
 
+def _make_env_in_worker(_shared, chunk):
+    """In a fresh worker: make the env by id after one import (the driver's registrations are not there)."""
+    import importlib
+
+    first, env_id = chunk
+    importlib.import_module(first)
+    import gymnasium as gym
+
+    env = gym.make(env_id)
+    obs, _ = env.reset(seed=0)
+    env.close()
+    return [env_id, list(obs.shape)]
+
+
+@pytest.mark.parametrize("first, env_id", [("bogie_env", "Bogie/Hunting-v0"), ("gymnasium", "bogie_env:Bogie/HuntingPassive-v0")])
+def test_ids_register_inside_ray_workers(ray_cluster, first, env_id):
+    (made,) = dist.map_chunks(_make_env_in_worker, [[first, env_id]], backend="ray", progress=False)
+    assert made[0] == env_id and len(made[1]) == 1
+
+
 @pytest.mark.slow
 def test_ray_full_study_equals_local_bitwise(ray_cluster, paper_params, tmp_path):
     local = sens.full_study(paper_params, workers=2, progress=False)
@@ -148,6 +168,9 @@ def test_tune_trial_config_keeps_the_agent_config_and_bounds_the_budget(tmp_path
     assert trial["hyperparams"]["learning_rate"] == 1e-4 and trial["hyperparams"]["n_steps"] == base["hyperparams"]["n_steps"]
     assert base["hyperparams"]["learning_rate"] == 0.0003  # the base is not modified
     assert task_config(base, "Bogie/Hunting-v0")["env"] == base["env"]
+    from bogie_env.envs.config import VARIANTS
+
+    assert task_config(base, "Bogie/HuntingPassive-v0")["eval_env"]["actuators"] == VARIANTS["passive"]["actuators"]
     best = {"hyperparams": {"learning_rate": 1e-4, "gamma": 0.98}, "mean_return": 12.5, "timesteps": 5000}
     path = write_best_config(base, best, tmp_path / "ppo_tuned.yaml", "Bogie/Hunting-v0", 2, tmp_path)
     written = load_run_config(path, "ppo")
@@ -178,3 +201,22 @@ def test_tune_two_trials_write_a_trainable_config_and_restore(ray_cluster, tmp_p
     assert summary["best"]["mean_return"] == max(t["mean_return"] for t in summary["trials"])
     again = tune_agent("ppo", tmp_path / "exp", **kwargs)  # the finished experiment is restored, not rerun
     assert again["restored"] and again["best"] == summary["best"]
+
+
+@pytest.mark.slow
+def test_rl_zoo_trains_on_the_registered_id(tmp_path):
+    """The documented RL Zoo command, with a short budget, in a fresh process."""
+    pytest.importorskip("rl_zoo3")
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    command = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", "Bogie/Hunting-v0", "--gym-packages", "bogie_env",
+               "--conf-file", str(root / "configs/zoo/ppo.yml"), "-n", "256", "--eval-freq", "-1", "--seed", "0",
+               "-f", str(tmp_path), "-params", "n_envs:2", "n_steps:128", "batch_size:64"]  # fmt: skip
+    done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    model = tmp_path / "ppo" / "Bogie-Hunting-v0_1" / "Bogie-Hunting-v0.zip"
+    assert model.is_file()
+    from stable_baselines3 import PPO
+
+    assert PPO.load(model, device="cpu").observation_space.shape[0] > 0
