@@ -17,13 +17,24 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
 import yaml
 
-#: Folder of the shipped configs (the repository's ``configs/``).
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+def _config_dir() -> Path:
+    """The shipped configs: package data ``bogie_env/configs/`` in an installed wheel, else the
+    repository's top-level ``configs/`` (a source checkout or an editable install)."""
+    packaged = resources.files(__package__) / "configs"
+    if packaged.is_dir():
+        return Path(str(packaged))
+    return Path(__file__).resolve().parent.parent / "configs"
+
+
+#: Folder of the shipped configs (bogie/*.yaml presets, agents/*.yaml hyperparameters).
+CONFIG_DIR = _config_dir()
 DEFAULT_BOGIE_CONFIG = CONFIG_DIR / "bogie" / "paper.yaml"
 
 
