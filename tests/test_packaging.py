@@ -112,3 +112,37 @@ def test_the_step_limit_follows_the_configured_ramp():
     cut = gym.make("bogie_env:Bogie/Hunting-v0", max_episode_steps=5)
     cut.reset(seed=0)
     assert [cut.step(cut.action_space.sample() * 0)[3] for _ in range(5)] == [False] * 4 + [True]
+
+
+def test_every_shipped_config_and_the_pretrained_policy_are_package_data():
+    """A file under configs/ or agents/pretrained/ that no package-data pattern matches would be
+    missing from a wheel (CI's non-editable smoke test checks the rest: .ci/run)."""
+    from pathlib import Path
+
+    import pytest
+
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+
+    root = Path(__file__).resolve().parent.parent
+    setup = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    folders = {package: Path(folder) for package, folder in setup["package-dir"].items()}
+
+    def source_dir(package: str) -> Path:
+        parts = package.split(".")
+        for i in range(len(parts), 0, -1):
+            if ".".join(parts[:i]) in folders:
+                return root / folders[".".join(parts[:i])] / Path(*parts[i:])
+        return root / Path(*parts)
+
+    shipped = set()
+    for package, patterns in setup["package-data"].items():
+        assert package in setup["packages"], package
+        for pattern in patterns:
+            shipped |= {p for p in source_dir(package).glob(pattern) if p.is_file()}
+    wanted = {p for folder in ("configs", "agents/pretrained") for p in (root / folder).rglob("*") if p.is_file()}
+    assert wanted and not wanted - shipped, sorted(str(p.relative_to(root)) for p in wanted - shipped)
+    packaged = {package for package in setup["packages"]}
+    for init in list((root / "bogie_env").rglob("__init__.py")) + list((root / "agents").rglob("__init__.py")):
+        folder = init.parent.relative_to(root)
+        name = ".".join(("bogie_agents",) + folder.parts[1:]) if folder.parts[0] == "agents" else ".".join(folder.parts)
+        assert name in packaged, f"{name} ({folder}) is not in pyproject's packages"
