@@ -24,10 +24,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
+from bogie_env.actuators import CHANNEL_NAMES, active_channels, force_matrix
 from bogie_env.dynamics import LATERAL_STATES, N_STATES, BogieModel, state_index
-from bogie_env.envs import kernel as K
-from bogie_env.envs.config import CHANNELS
-from bogie_env.envs.core import STATE_SCALES
+from bogie_env.envs import task as T
+from bogie_env.envs.config import bogie_params
+from bogie_env.envs.task import STATE_SCALES
 from bogie_env.stability import KMH, linearize
 
 LAT = list(LATERAL_STATES)
@@ -42,9 +43,9 @@ class Controller:
 
     def __init__(self, env_config: dict) -> None:
         self.config = env_config
-        self.active = [k for k, name in enumerate(CHANNELS) if env_config["actuators"][name]["mode"] != "off"]
+        self.active = active_channels(env_config["actuators"])
         self.action_dim = max(1, len(self.active))
-        self.max_force = np.array([env_config["actuators"][CHANNELS[k]]["max_force"] for k in self.active])
+        self.max_force = np.array([env_config["actuators"][CHANNEL_NAMES[k]]["max_force"] for k in self.active])
         self.dt = env_config["dt"]
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
@@ -55,8 +56,7 @@ class Controller:
 
     def speed_kmh(self, obs: np.ndarray) -> np.ndarray:
         """The speed, read from the observation (the entry after the sensors or states)."""
-        index = N_STATES if self.observation_type == "state" else K.N_SENSORS - 1
-        return obs[:, index].astype(float) * K.SPEED_SCALE_KMH + K.SPEED_CENTRE_KMH
+        return T.speed_kmh_from_observation(obs, self.observation_type)
 
 
 class PassiveController(Controller):
@@ -81,7 +81,7 @@ class SkyhookController(Controller):
     def __init__(self, env_config: dict, c_lateral: float = 6.0e4, c_yaw: float = 3.0e5, c_wheelset: float = 3.0e5,
                  leak_hz: float = 0.3) -> None:  # fmt: skip
         super().__init__(env_config)
-        self.gains = {0: c_lateral, 1: c_yaw, 2: c_wheelset, 3: c_wheelset}
+        self.gains = {"frame_lateral": c_lateral, "frame_yaw": c_yaw, "wheelset1_yaw": c_wheelset, "wheelset2_yaw": c_wheelset}
         self.leak = math.exp(-2 * math.pi * leak_hz * self.dt)
         self.velocity = np.zeros(0)
         self.previous_rel_yaw = np.zeros((0, 2))
@@ -100,29 +100,26 @@ class SkyhookController(Controller):
         n = obs.shape[0]
         if self.velocity.size != n:
             self.reset(n)
-        accel = obs[:, 0] * K.ACCEL_SCALE
-        frame_yaw_rate = obs[:, 1] * K.YAW_RATE_SCALE
-        rel_yaw = obs[:, 4:6].astype(float) * K.REL_YAW_SCALE
+        accel = obs[:, T.SENSOR_FRAME_LATERAL_ACCEL] * T.ACCEL_SCALE
+        frame_yaw_rate = obs[:, T.SENSOR_FRAME_YAW_RATE] * T.YAW_RATE_SCALE
+        rel_yaw = obs[:, [T.SENSOR_WHEELSET1_YAW, T.SENSOR_WHEELSET2_YAW]].astype(float) * T.REL_YAW_SCALE
         self.velocity = self.leak * self.velocity + accel * self.dt
         rel_rate = np.where(self.started[:, None], (rel_yaw - self.previous_rel_yaw) / self.dt, 0.0)
         self.previous_rel_yaw = rel_yaw
         self.started[:] = True
-        rates = {0: self.velocity, 1: frame_yaw_rate, 2: rel_rate[:, 0] + frame_yaw_rate, 3: rel_rate[:, 1] + frame_yaw_rate}
+        rates = {"frame_lateral": self.velocity, "frame_yaw": frame_yaw_rate, "wheelset1_yaw": rel_rate[:, 0] + frame_yaw_rate,
+                 "wheelset2_yaw": rel_rate[:, 1] + frame_yaw_rate}  # fmt: skip
         actions = np.zeros((n, self.action_dim))
         for j, k in enumerate(self.active):
-            actions[:, j] = -self.gains[k] * rates[k] / self.max_force[j]
+            name = CHANNEL_NAMES[k]
+            if name in self.gains:  # a channel skyhook has no law for stays at zero
+                actions[:, j] = -self.gains[name] * rates[name] / self.max_force[j]
         return np.clip(actions, -1, 1).astype(np.float32)
 
 
 # ---------------------------------------------------------------------------------------------
 # Gain-scheduled LQR / LQG
 # ---------------------------------------------------------------------------------------------
-
-
-def channel_to_generalised(active: list[int]) -> np.ndarray:
-    """(4, n_active): generalised forces per unit channel force (wheelset torques react on the frame)."""
-    full = np.array([[1, 0, 0, 0], [0, 1, -1, -1], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
-    return full[:, active]
 
 
 def discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -161,17 +158,14 @@ class LQRController(Controller):
     def __init__(self, env_config: dict, r: float = 1.0, step_kmh: float = 10.0, model: BogieModel | None = None,
                  v_range_kmh: tuple[float, float] | None = None) -> None:  # fmt: skip
         super().__init__(env_config)
-        from bogie_env.params import load_params
-
-        params = load_params(env_config["bogie"], [f"{k}={v}" for k, v in env_config["bogie_overrides"].items()])
-        self.model = model if model is not None else BogieModel(params)
+        self.model = model if model is not None else BogieModel(bogie_params(env_config))
         self.lin = linearize(self.model)
         self.r = r
         sp = env_config["speed"]
         lo, hi = v_range_kmh if v_range_kmh else (min(250.0, sp["start_kmh"]), max(700.0, sp["end_kmh"]))
         self.speeds_kmh = np.arange(lo, hi + 1e-9, step_kmh)
         self.n_act = len(self.active)
-        self.bandwidth = np.array([2 * math.pi * env_config["actuators"][CHANNELS[k]]["bandwidth_hz"] for k in self.active])
+        self.bandwidth = np.array([2 * math.pi * env_config["actuators"][CHANNEL_NAMES[k]]["bandwidth_hz"] for k in self.active])
         self.points = [self._design(v / KMH) for v in self.speeds_kmh]
         self.gains = np.stack([p.gain for p in self.points])  # (n_speeds, n_act, n_aug)
         self.force_state = np.zeros((0, self.n_act))
@@ -179,7 +173,7 @@ class LQRController(Controller):
     # ---- design -------------------------------------------------------------------------------
     def continuous_model(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
         a_lat = self.lin.lateral_jacobian(speed)
-        b_full = self.model.input_matrix() @ channel_to_generalised(self.active)  # (20, n_act)
+        b_full = self.model.input_matrix() @ force_matrix(self.active)  # (20, n_act)
         b_lat = b_full[LAT]
         n, m = N_LAT, self.n_act
         a = np.zeros((n + m, n + m))
@@ -280,15 +274,19 @@ class LQGController(LQRController):
         L1 = self.model.params.L1
         delta = self.model.params.delta
         idx = {name: LAT.index(state_index(name)) for name in ("y1", "y2", "yb", "psi1", "psi2", "psib", "dyb", "dpsib")}
-        c = np.zeros((6, a.shape[0]))
-        c[0] = a[idx["dyb"]] / K.ACCEL_SCALE  # frame lateral acceleration (the dyb row)
-        c[1, idx["dpsib"]] = 1.0 / K.YAW_RATE_SCALE
-        c[2, idx["y1"]], c[2, idx["yb"]], c[2, idx["psib"]] = 1 / delta, -1 / delta, -L1 / delta
-        c[3, idx["y2"]], c[3, idx["yb"]], c[3, idx["psib"]] = 1 / delta, -1 / delta, L1 / delta
-        c[4, idx["psi1"]], c[4, idx["psib"]] = 1 / K.REL_YAW_SCALE, -1 / K.REL_YAW_SCALE
-        c[5, idx["psi2"]], c[5, idx["psib"]] = 1 / K.REL_YAW_SCALE, -1 / K.REL_YAW_SCALE
-        d = np.zeros((6, self.n_act))
-        d[0] = b[idx["dyb"]] / K.ACCEL_SCALE
+        c = np.zeros((len(T.SENSORS), a.shape[0]))
+        c[T.SENSOR_FRAME_LATERAL_ACCEL] = a[idx["dyb"]] / T.ACCEL_SCALE  # the dyb row
+        c[T.SENSOR_FRAME_YAW_RATE, idx["dpsib"]] = 1.0 / T.YAW_RATE_SCALE
+        row = T.SENSOR_WHEELSET1_LATERAL
+        c[row, idx["y1"]], c[row, idx["yb"]], c[row, idx["psib"]] = 1 / delta, -1 / delta, -L1 / delta
+        row = T.SENSOR_WHEELSET2_LATERAL
+        c[row, idx["y2"]], c[row, idx["yb"]], c[row, idx["psib"]] = 1 / delta, -1 / delta, L1 / delta
+        row = T.SENSOR_WHEELSET1_YAW
+        c[row, idx["psi1"]], c[row, idx["psib"]] = 1 / T.REL_YAW_SCALE, -1 / T.REL_YAW_SCALE
+        row = T.SENSOR_WHEELSET2_YAW
+        c[row, idx["psi2"]], c[row, idx["psib"]] = 1 / T.REL_YAW_SCALE, -1 / T.REL_YAW_SCALE
+        d = np.zeros((len(T.SENSORS), self.n_act))
+        d[T.SENSOR_FRAME_LATERAL_ACCEL] = b[idx["dyb"]] / T.ACCEL_SCALE
         return c, d
 
     def _design_filter(self, point: DesignPoint) -> None:
@@ -333,7 +331,7 @@ class LQGController(LQRController):
         cd, kal = self._interp(self.cds, speed), self._interp(self.kalmans, speed)
         # predict with the last command, then correct with the new measurement
         prior = np.einsum("nij,nj->ni", ad, self.estimate) + np.einsum("nij,nj->ni", bd, self.last_action)
-        measured = obs[:, :6].astype(float)
+        measured = obs[:, : len(T.SENSORS)].astype(float)
         _, d = self.measurement_matrix(float(np.mean(speed)) / KMH)
         predicted = np.einsum("nij,nj->ni", cd, prior) + self.last_action @ d.T
         self.estimate = prior + np.einsum("nij,nj->ni", kal, measured - predicted)

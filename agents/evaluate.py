@@ -31,11 +31,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bogie_env.analysis.bifurcation import fixed_speed_amplitudes
-from bogie_env.dynamics import N_STATES, P_DELTA, BogieModel, state_index
-from bogie_env.envs import kernel as K
-from bogie_env.envs.config import CHANNELS, MAX_SPEED_KMH, make_config, merge_config
-from bogie_env.envs.core import HuntingTask
-from bogie_env.params import load_params
+from bogie_env.actuators import CHANNEL_NAMES as CHANNELS
+from bogie_env.dynamics import N_STATES, BogieModel, state_index
+from bogie_env.envs.config import MAX_SPEED_KMH, bogie_params, make_config, merge_config
+from bogie_env.envs.task import HuntingTask
 from bogie_env.stability import KMH
 
 DEGRADED = {"Csy-50%": {"Csy": 0.5}, "Kpz-50%": {"Kpz": 0.5}, "Wpa-50%": {"Wpa": 0.5}, "Wpa+50%": {"Wpa": 1.5}}
@@ -70,7 +69,7 @@ class LimitCycleStarts:
     """Passive hunting limit-cycle states per bogie variant and speed (cached)."""
 
     def __init__(self, env_config: dict) -> None:
-        self.params = load_params(env_config["bogie"], [f"{k}={v}" for k, v in env_config["bogie_overrides"].items()])
+        self.params = bogie_params(env_config)
         self.cache: dict[tuple, np.ndarray] = {}
 
     def states(self, scales: dict[str, float], speeds_kmh: np.ndarray) -> np.ndarray:
@@ -122,14 +121,13 @@ def fixed_speed_trials(
     task.seed_rows(rows, [settings.seed] * n)
     for i, v in enumerate(speeds_kmh):
         task.reset_rows(np.array([i]), {"start_kmh": float(v), "end_kmh": float(v), "accel": 0.0, "params": dict(scales)})
-    states = task.x.copy()
+    states = task.states.copy()
     lc_rows = [i for i, kind in enumerate(kinds) if kind == "limit_cycle"]
     if lc_rows:
         states[lc_rows] = cycles.states(scales, speeds_kmh[lc_rows])
     small_rows = [i for i, kind in enumerate(kinds) if kind == "small"]
     states[small_rows, state_index("y1")] += settings.small_offset_m
-    task.x[:] = states
-    K.task_observe(task.x, task.scal, task.act, task.P, task.cfg, task.track.values, task.obs)
+    task.set_states(states)
     policy.reset(n)
     steps = int(round(settings.duration_s / task.config["dt"]))
     windows = {"early": (int(5.0 / task.config["dt"]), int(10.0 / task.config["dt"])),
@@ -140,8 +138,8 @@ def fixed_speed_trials(
     blown = np.zeros(n, dtype=bool)
     for k in range(steps):
         task.step(policy.act(task.obs))
-        blown |= task.flags[:, 3].astype(bool)
-        lateral = task.x[:, [0, 8]]
+        blown |= task.blowup
+        lateral = task.states[:, [state_index("y1"), state_index("y2")]]
         for w, (a, b) in windows.items():
             if a <= k < b:
                 np.minimum(low[w], lateral, out=low[w])
@@ -152,7 +150,7 @@ def fixed_speed_trials(
     # a new equilibrium, not hunting
     early = 0.5 * (high["early"] - low["early"]).max(axis=1)
     late = 0.5 * (high["late"] - low["late"]).max(axis=1)
-    delta = task.P[:, P_DELTA]
+    delta = task.flange_clearance
     rest = ((late < settings.at_rest_m) | (late < 0.5 * early)) & (largest < 0.5 * delta) & ~blown
     return rest
 
@@ -207,14 +205,14 @@ def ramp_onset(policy, env_config: dict, settings: ProtocolSettings) -> dict:
     done = np.zeros(n, dtype=bool)
     onset = np.full(n, np.nan)
     reached = np.zeros(n)
-    peak = np.zeros((n, 4))
+    peak = np.zeros((n, len(CHANNELS)))
     while not done.all():
         task.step(policy.act(task.obs))
         live = ~done
-        peak[live] = np.maximum(peak[live], np.abs(task.info[live, K.I_FORCE : K.I_FORCE + 4]))
-        finished = live & (task.flags[:, 0].astype(bool) | task.flags[:, 1].astype(bool))
-        onset[finished] = task.info[finished, K.I_ONSET_KMH]
-        reached[live] = task.info[live, K.I_SPEED_KMH]
+        peak[live] = np.maximum(peak[live], np.abs(task.actuator_force[live]))
+        finished = live & task.done
+        onset[finished] = task.onset_speed_kmh[finished]
+        reached[live] = task.speed_kmh[live]
         done |= finished
     sp = task.config["speed"]
     hunted = ~np.isnan(onset)
@@ -227,7 +225,7 @@ def ramp_onset(policy, env_config: dict, settings: ProtocolSettings) -> dict:
         "mean_reached_kmh": round(float(np.mean(reached)), 2),
         "criterion": (f"hunting: rms over {task.config['hunting']['window_m']:g} m of |y - track| > "
                       f"{task.config['hunting']['rms_fraction']:g} x flange clearance"),
-        "peak_force": {CHANNELS[k]: round(float(peak[:, k].max()), 1) for k in range(4)},
+        "peak_force": {name: round(float(peak[:, k].max()), 1) for k, name in enumerate(CHANNELS)},
     }  # fmt: skip
 
 
@@ -239,33 +237,33 @@ def effort(policy, env_config: dict, settings: ProtocolSettings) -> dict:
     n = settings.effort_seeds
     task = _seeded_task(policy, config, n, settings.seed)
     steps = int(round(settings.effort_duration_s / task.config["dt"]))
-    force_sq = np.zeros((n, 4))
-    peak = np.zeros((n, 4))
-    power = np.zeros((n, 4))
-    rate_sq = np.zeros((n, 4))
+    force_sq = np.zeros((n, len(CHANNELS)))
+    peak = np.zeros((n, len(CHANNELS)))
+    power = np.zeros((n, len(CHANNELS)))
+    rate_sq = np.zeros((n, len(CHANNELS)))
     hunted = np.zeros(n, dtype=bool)
-    previous = task.info[:, K.I_FORCE : K.I_FORCE + 4].copy()
+    previous = task.actuator_force.copy()
     for _ in range(steps):
         task.step(policy.act(task.obs))
-        f = task.info[:, K.I_FORCE : K.I_FORCE + 4]
+        f = task.actuator_force
         force_sq += f * f
         rate_sq += (f - previous) ** 2
         previous[:] = f
         np.maximum(peak, np.abs(f), out=peak)
-        power += task.info[:, K.I_POWER : K.I_POWER + 4]
-        hunted |= task.flags[:, 2].astype(bool)
-    limits = np.array([task.config["actuators"][name]["max_force"] for name in CHANNELS])
+        power += task.actuator_power
+        hunted |= task.hunting
+    limits = task.actuator_limits
     rms = np.sqrt(force_sq.mean(axis=0) / steps)
     rms_rate = np.sqrt(rate_sq.mean(axis=0) / steps) / task.config["dt"]
     return {
         "speed_kmh": settings.effort_speed_kmh, "track_rms_m": task.config["track"]["rms"],
         "duration_s": settings.effort_duration_s, "seeds": n,
-        "rms_force": {CHANNELS[k]: round(float(rms[k]), 1) for k in range(4)},
-        "peak_force": {CHANNELS[k]: round(float(peak[:, k].max()), 1) for k in range(4)},
+        "rms_force": {CHANNELS[k]: round(float(rms[k]), 1) for k in range(len(CHANNELS))},
+        "peak_force": {CHANNELS[k]: round(float(peak[:, k].max()), 1) for k in range(len(CHANNELS))},
         # rms rate of change of the force (N/s or N m/s): chatter and actuator wear
-        "rms_force_rate": {CHANNELS[k]: round(float(rms_rate[k]), 1) for k in range(4)},
-        "mean_power_w": {CHANNELS[k]: round(float(power[:, k].mean() / steps), 2) for k in range(4)},
-        "limits": {CHANNELS[k]: float(limits[k]) for k in range(4)},
+        "rms_force_rate": {CHANNELS[k]: round(float(rms_rate[k]), 1) for k in range(len(CHANNELS))},
+        "mean_power_w": {CHANNELS[k]: round(float(power[:, k].mean() / steps), 2) for k in range(len(CHANNELS))},
+        "limits": {CHANNELS[k]: float(limits[k]) for k in range(len(CHANNELS))},
         "within_limits": bool(np.all(peak <= limits + 1e-6)),
         "hunted": int(hunted.sum()),
     }  # fmt: skip

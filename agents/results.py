@@ -20,7 +20,7 @@ import numpy as np
 from bogie_env.analysis.plots import EN14363_KMH, plt, save
 from bogie_env.analysis.report import write_text_atomic
 from bogie_env.envs.config import MAX_SPEED_KMH, merge_config
-from bogie_env.envs.core import HuntingTask
+from bogie_env.envs.task import HuntingTask
 
 from .evaluate import PARTS, ProtocolSettings, _policy_config, evaluate_policy
 from .policies import PRETRAINED_DIR, load_policy
@@ -39,11 +39,9 @@ def ramp_trace(policy, env_config: dict, seed: int = 0) -> tuple[np.ndarray, np.
     speeds, lateral = [], []
     while True:
         task.step(policy.act(task.obs))
-        s = task.scal[0, 2]
-        y_rel = task.x[0, 0] - task.track.at(s + task.model.params.L1)
-        speeds.append(task.info[0, 0])
-        lateral.append(1e3 * float(y_rel))
-        if task.flags[0, 0] or task.flags[0, 1]:
+        speeds.append(float(task.speed_kmh[0]))
+        lateral.append(1e3 * float(task.relative_lateral_m[0, 0]))
+        if task.done[0]:
             break
     return np.array(speeds), np.array(lateral)
 

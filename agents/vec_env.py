@@ -18,8 +18,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-from bogie_env.envs.core import HuntingTask
-from bogie_env.envs.hunting_env import info_from_row
+from bogie_env.envs.task import HuntingTask
 from bogie_env.envs.vector import _seeds
 
 
@@ -68,16 +67,16 @@ class BogieHuntingSB3VecEnv(VecEnv):
     def step_wait(self):
         self.task.step(self._actions)
         self._episode_steps += 1
-        terminated = self.task.flags[:, 0].astype(bool)
+        terminated = self.task.terminated
         time_limit = self._episode_steps >= self.max_episode_steps
-        truncated = self.task.flags[:, 1].astype(bool) | time_limit
+        truncated = self.task.truncated | time_limit
         dones = terminated | truncated
         rewards = self.task.reward.astype(np.float32)
         obs = self.task.obs.copy()
         infos: list[dict] = [{} for _ in range(self.num_envs)]
         done_rows = np.nonzero(dones)[0]
         for i in done_rows:
-            info = info_from_row(self.task, int(i))
+            info = self.task.info_dict(int(i))
             info["terminal_observation"] = obs[i].copy()
             info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
             infos[i] = info

@@ -15,7 +15,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .params import ConfigError, load_params
+from .params import ConfigError, load_params, parse_assignments
 
 COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], int], Callable[[argparse.ArgumentParser], None], str]] = {}
 
@@ -91,16 +91,15 @@ def _json_default(value):
 
 def env_config_from_args(args: argparse.Namespace) -> dict:
     """The env config (``--env-config``) with the bogie preset and ``--set`` overrides folded in."""
-    from .envs.config import make_config
+    from .envs.config import bogie_params, make_config
 
     env_config = make_config(args.env_config)
     if args.config is None and not args.overrides:
         return env_config
-    params = load_params(args.config or env_config["bogie"], args.overrides)  # validates names and values
-    names = [item.split("=", 1)[0].strip() for item in args.overrides]
     if args.config is not None:
         env_config["bogie"] = args.config
-    env_config["bogie_overrides"] = {**env_config["bogie_overrides"], **{n: float(getattr(params, n)) for n in names}}
+    env_config["bogie_overrides"] = {**env_config["bogie_overrides"], **parse_assignments(args.overrides)}
+    bogie_params(env_config)  # the preset loads and takes the overrides
     return make_config(env_config)
 
 

@@ -1,26 +1,18 @@
-"""Time integration: a compiled, batched fixed-step RK4 and scipy reference runs.
+"""Time integration: one RK4 interval of one bogie, step-size choice, scipy reference runs.
 
-The fixed-step kernel advances N bogies by one control interval ``dt`` in ``n_sub`` classic
-RK4 substeps, entirely inside compiled code. Within the interval:
+:func:`_advance_row` advances one bogie by one control interval ``dt`` in ``n_sub`` classic
+RK4 substeps. Within the interval:
 
 - the speed ramps linearly, ``V(t) = V0 + a t`` (the paper's speed-ramp runs, Section 4);
-- the distance travelled ``s(t) = s0 + V0 t + a t^2 / 2`` places each wheelset on a
-  shared, periodic track-alignment profile (``x = s + L1`` front, ``s - L1`` rear);
-- each of the 4 actuator channels applies ``u_k = sat(F_k(t) - c_k(t) v_k(x))``: a force
-  ``F_k`` and a damping coefficient ``c_k`` that both follow a first-order lag from their
-  start values to their targets exactly (``exp(-t/tau)``), and ``v_k`` the channel's
-  relative velocity (frame lateral, frame yaw, wheelset-minus-frame yaw 1 and 2), saturated
-  at ``+-u_max``. Force actuators use ``c = 0``; semi-active dampers use ``F = 0`` and
-  ``c >= 0``; saturating a damper's force keeps its sign, so it still only dissipates.
+- the distance travelled ``s(t) = s0 + V0 t + a t^2 / 2`` places each wheelset on the track
+  input (:func:`bogie_env.track.sample_track`);
+- the actuator channels act as :mod:`bogie_env.actuators` says: lagged force minus lagged
+  damping times the channel's relative velocity, saturated, mapped to the generalised forces.
 
-The generalised forces handed to the dynamics are ``Q = (u0, u1 - u2 - u3, u2, u3)``:
-wheelset steering torques react on the frame.
-
-The step size is chosen from the measured spectrum (:func:`stable_substep`): every
-eigenvalue of the linearised model over the speed range, on and off the flange, must lie
-inside RK4's stability region with a 5 % margin. Accuracy at that step is checked in
-``docs/model.md`` (Section 8): limit-cycle amplitudes within 0.03 mm of a four times finer
-step.
+The one batch driver over rows is :mod:`bogie_env.simulator`. The step size is chosen from
+the measured spectrum (:func:`stable_substep`): every eigenvalue of the linearised model over
+the speed range, on and off the flange, must lie inside RK4's stability region with a 5 %
+margin. Accuracy at that step is checked in ``docs/model.md`` (Section 8).
 """
 
 from __future__ import annotations
@@ -29,10 +21,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 from scipy.integrate import solve_ivp
 
+from .actuators import N_CHANNELS, channel_output, channel_velocity, generalised_forces
 from .dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _rhs_row, check_speed, rhs_single_kernel
+from .track import N_TRACK_SAMPLES, sample_track
 
 #: fastmath flags of the stepping kernels: none (IEEE arithmetic). With 'contract',
 #: 'reassoc', 'arcp' or 'afn', LLVM's vectorised loops and their scalar remainders round
@@ -44,170 +38,81 @@ FASTMATH: set[str] = set()
 
 STATUS_OK = 0
 STATUS_NONFINITE = 1
-WORK_SIZE = 110  # scratch floats per row for _advance_row
-N_CHUNKS = 64  # parallel loops run over contiguous chunks of rows, one scratch buffer each
+
+# Scratch rows of _advance_row (one (N_SCRATCH, N_STATES) buffer per thread):
+K1, K2, K3, K4, XS, U, Q, YT = range(8)  # RK4 stages, stage state, channel outputs, inputs, track
+N_SCRATCH = 8
+# Rows of a bogie's channel outputs: force at the end of the interval, mean power over it.
+OUT_FORCE, OUT_POWER = 0, 1
+assert N_CHANNELS <= N_STATES and N_INPUTS <= N_STATES and N_TRACK_SAMPLES <= N_STATES
 
 
 @njit(cache=True, inline="always")
-def chunk_bounds(n_rows, n_chunks, c):
-    """Rows [start, stop) of chunk c when n_rows are split into n_chunks."""
-    return (c * n_rows) // n_chunks, ((c + 1) * n_rows) // n_chunks
+def _stage_derivative(x, t, v0, accel, s0, lag, target, channels, track, p, scratch, out):
+    """dx/dt at time t inside the interval; also leaves the channel outputs in ``scratch.u``."""
+    u = scratch[U]
+    q = scratch[Q]
+    for k in range(N_CHANNELS):
+        u[k] = channel_output(x, k, t, lag, target, channels)
+    generalised_forces(u, q)
+    sample_track(track, s0 + v0 * t + 0.5 * accel * t * t, p[P_L1], scratch[YT])
+    _rhs_row(x, v0 + accel * t, q, scratch[YT], p, out)
 
 
 @njit(cache=True, inline="always")
-def _track_at(profile, inv_dx, s):
-    """Linear interpolation on a periodic profile sampled every 1/inv_dx metres."""
-    m = profile.shape[0]
-    if m == 0:
-        return 0.0
-    u = s * inv_dx
-    k = math.floor(u)
-    w = u - k
-    i0 = int(k) % m
-    i1 = (i0 + 1) % m
-    return (1.0 - w) * profile[i0] + w * profile[i1]
+def _add_power(power, u, x, divisor):
+    for k in range(N_CHANNELS):
+        power[k] += u[k] * channel_velocity(x, k) / divisor
 
 
 @njit(cache=True, inline="always")
-def _channel_velocity(x, k):
-    if k == 0:
-        return x[17]  # frame lateral velocity
-    if k == 1:
-        return x[19]  # frame yaw rate
-    return x[5 + 8 * (k - 2)] - x[19]  # wheelset yaw rate relative to the frame
-
-
-@njit(cache=True, inline="always")
-def _channel_output(x, k, t, f_start, f_target, c_start, c_target, decay_rate, u_max):
-    """Channel k's force at time t: lagged force minus lagged damping times velocity, saturated."""
-    w = math.exp(-decay_rate[k] * t)
-    force = f_target[k] + (f_start[k] - f_target[k]) * w
-    damping = c_target[k] + (c_start[k] - c_target[k]) * w
-    value = force - damping * _channel_velocity(x, k)
-    return min(max(value, -u_max[k]), u_max[k])
-
-
-@njit(cache=True, inline="always")
-def _stage_derivative(x, t, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, out):
-    """dx/dt at time t inside the interval; also leaves the channel outputs in ``u``."""
-    for k in range(N_INPUTS):
-        u[k] = _channel_output(x, k, t, f_start, f_target, c_start, c_target, decay_rate, u_max)
-    q[0] = u[0]
-    q[1] = u[1] - u[2] - u[3]
-    q[2] = u[2]
-    q[3] = u[3]
-    s = s0 + V0 * t + 0.5 * accel * t * t
-    L1 = p[P_L1]
-    yt[0] = _track_at(profile, inv_dx, s + L1)
-    yt[1] = _track_at(profile, inv_dx, s - L1)
-    _rhs_row(x, V0 + accel * t, q, yt, p, out)
-
-
-@njit(cache=True, inline="always")
-def _advance_row(x, V0, accel, s0, dt, n_sub, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, u_end, power_mean, work):
+def _advance_row(x, v0, accel, s0, dt, n_sub, lag, target, channels, track, p, out, scratch):
     """Advance one bogie by dt in n_sub RK4 substeps. Returns a status code.
 
-    ``work`` is scratch space of WORK_SIZE floats, allocated once per thread by the caller:
-    allocating inside a parallel loop serialises the threads on the allocator's counters.
+    The speed is ``v0 + accel t`` and the distance ``s0 + v0 t + accel t^2 / 2`` within the
+    interval; ``lag`` (2, N_CHANNELS) holds the channels' lag states at its start and ``target``
+    (2, N_CHANNELS) their targets (:mod:`bogie_env.actuators`); ``channels`` is the channel table
+    and ``track`` the track input (:mod:`bogie_env.track`). ``out`` (2, N_CHANNELS) receives
+    the channel outputs at the end of the interval and the mean power over it.
+    ``scratch`` (N_SCRATCH, 20) is allocated once per thread by the caller: allocating inside a
+    parallel loop serialises the threads on the allocator's counters.
     """
     h = dt / n_sub
-    k1 = work[0:20]
-    k2 = work[20:40]
-    k3 = work[40:60]
-    k4 = work[60:80]
-    xs = work[80:100]
-    q = work[100:104]
-    u = work[104:108]
-    yt = work[108:110]
-    for k in range(N_INPUTS):
-        power_mean[k] = 0.0
+    k1 = scratch[K1]
+    k2 = scratch[K2]
+    k3 = scratch[K3]
+    k4 = scratch[K4]
+    xs = scratch[XS]
+    u = scratch[U]
+    power = out[OUT_POWER]
+    for k in range(N_CHANNELS):
+        power[k] = 0.0
     for j in range(n_sub):
         t = j * h
-        _stage_derivative(x, t, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, k1)
-        for k in range(N_INPUTS):
-            power_mean[k] += u[k] * _channel_velocity(x, k) / 6.0
+        _stage_derivative(x, t, v0, accel, s0, lag, target, channels, track, p, scratch, k1)
+        _add_power(power, u, x, 6.0)
         for i in range(N_STATES):
             xs[i] = x[i] + 0.5 * h * k1[i]
-        _stage_derivative(xs, t + 0.5 * h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, k2)
-        for k in range(N_INPUTS):
-            power_mean[k] += u[k] * _channel_velocity(xs, k) / 3.0
+        _stage_derivative(xs, t + 0.5 * h, v0, accel, s0, lag, target, channels, track, p, scratch, k2)
+        _add_power(power, u, xs, 3.0)
         for i in range(N_STATES):
             xs[i] = x[i] + 0.5 * h * k2[i]
-        _stage_derivative(xs, t + 0.5 * h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, k3)
-        for k in range(N_INPUTS):
-            power_mean[k] += u[k] * _channel_velocity(xs, k) / 3.0
+        _stage_derivative(xs, t + 0.5 * h, v0, accel, s0, lag, target, channels, track, p, scratch, k3)
+        _add_power(power, u, xs, 3.0)
         for i in range(N_STATES):
             xs[i] = x[i] + h * k3[i]
-        _stage_derivative(xs, t + h, V0, accel, s0, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, q, yt, u, k4)
-        for k in range(N_INPUTS):
-            power_mean[k] += u[k] * _channel_velocity(xs, k) / 6.0
+        _stage_derivative(xs, t + h, v0, accel, s0, lag, target, channels, track, p, scratch, k4)
+        _add_power(power, u, xs, 6.0)
         for i in range(N_STATES):
             x[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    for k in range(N_INPUTS):
-        power_mean[k] /= n_sub
-    # channel outputs at the end of the interval
-    for k in range(N_INPUTS):
-        u_end[k] = _channel_output(x, k, dt, f_start, f_target, c_start, c_target, decay_rate, u_max)
+    for k in range(N_CHANNELS):
+        power[k] /= n_sub
+    for k in range(N_CHANNELS):
+        out[OUT_FORCE, k] = channel_output(x, k, dt, lag, target, channels)
     for i in range(N_STATES):
         if not math.isfinite(x[i]):
             return STATUS_NONFINITE
     return STATUS_OK
-
-
-@njit(cache=True, parallel=True, fastmath=FASTMATH)
-def advance_batch_kernel(x, V, accel, s, dt, n_sub, f_start, f_target, c_start, c_target, decay_rate, u_max, profile, inv_dx, p, u_end, power_mean, status):
-    """Advance N bogies in place by dt; V and s advance too. Rows run in parallel.
-
-    Shapes: x (N, 20); V, accel, s, status (N,); f_start, f_target, c_start, c_target,
-    u_end, power_mean (N, 4); decay_rate (4,) = 1/tau per channel (0: no lag); u_max (4,)
-    saturation of each channel's output (inf: none);
-    profile (M,) shared periodic track alignment (M = 0: perfect track).
-    """
-    n_rows = x.shape[0]
-    n_chunks = min(n_rows, N_CHUNKS)
-    for c in prange(n_chunks):
-        work = np.empty(WORK_SIZE)
-        start, stop = chunk_bounds(n_rows, n_chunks, c)
-        for n in range(start, stop):
-            status[n] = _advance_row(
-                x[n], V[n], accel[n], s[n], dt, n_sub, f_start[n], f_target[n], c_start[n], c_target[n],
-                decay_rate, u_max, profile, inv_dx, p, u_end[n], power_mean[n], work,
-            )  # fmt: skip
-            s[n] += V[n] * dt + 0.5 * accel[n] * dt * dt
-            V[n] += accel[n] * dt
-
-
-@njit(cache=True, fastmath=FASTMATH)
-def simulate_ramp_kernel(x, V, accel, dt, n_sub, n_steps, record_every, profile, inv_dx, s, p, v_floor, v_ceiling, states_out, speeds_out):
-    """One passive bogie for n_steps intervals of dt, recording every ``record_every``.
-
-    The speed is held inside [v_floor, v_ceiling]. Returns the number of records written
-    and a status code (non-finite state stops the run).
-    """
-    zeros = np.zeros(N_INPUTS)
-    unbounded = np.full(N_INPUTS, np.inf)
-    u_end = np.empty(N_INPUTS)
-    power = np.empty(N_INPUTS)
-    work = np.empty(WORK_SIZE)
-    n_rec = 0
-    for step in range(n_steps):
-        if step % record_every == 0:
-            for i in range(N_STATES):
-                states_out[n_rec, i] = x[i]
-            speeds_out[n_rec] = V
-            n_rec += 1
-        a = accel
-        if V + a * dt > v_ceiling or V + a * dt < v_floor:
-            a = 0.0
-        code = _advance_row(x, V, a, s, dt, n_sub, zeros, zeros, zeros, zeros, zeros, unbounded, profile, inv_dx, p, u_end, power, work)
-        s += V * dt + 0.5 * a * dt * dt
-        V += a * dt
-        if code != STATUS_OK:
-            return n_rec, code
-    for i in range(N_STATES):
-        states_out[n_rec, i] = x[i]
-    speeds_out[n_rec] = V
-    return n_rec + 1, STATUS_OK
 
 
 # ---------------------------------------------------------------------------------
@@ -281,26 +186,6 @@ def stable_substep(
 # ---------------------------------------------------------------------------------
 # Python front-ends
 # ---------------------------------------------------------------------------------
-
-
-def channel_damping_jacobian(model: BogieModel, damping: np.ndarray) -> np.ndarray:
-    """Jacobian of the channels' damping forces, -B G diag(c) V: what viscous actuators add.
-
-    ``damping`` (4,) per channel; V maps states to channel velocities and G maps channel
-    forces to the generalised forces (wheelset torques react on the frame).
-    """
-    velocity = np.zeros((N_INPUTS, N_STATES))
-    velocity[0, 17] = 1.0
-    velocity[1, 19] = 1.0
-    velocity[2, 5], velocity[2, 19] = 1.0, -1.0
-    velocity[3, 13], velocity[3, 19] = 1.0, -1.0
-    to_generalised = np.array([[1, 0, 0, 0], [0, 1, -1, -1], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
-    return -model.input_matrix() @ to_generalised @ np.diag(damping) @ velocity
-
-
-def empty_profile() -> np.ndarray:
-    """A zero-length profile: perfect track."""
-    return np.zeros(0)
 
 
 def reference_solution(

@@ -257,22 +257,29 @@ class BogieParams:
             changes[name] = base * factor
         return self.replace(**changes)
 
-    def with_overrides(self, assignments: list[str] | tuple[str, ...]) -> "BogieParams":
-        """Apply ``NAME=VALUE`` strings (the CLI's ``--set``)."""
-        changes: dict[str, Any] = {}
-        for item in assignments:
-            if "=" not in item:
-                raise ConfigError(f"--set {item!r}: expected NAME=VALUE, e.g. Csy=45000")
-            name, value = (part.strip() for part in item.split("=", 1))
-            changes[name] = value
-        return self.replace(**changes)
+    def with_overrides(self, assignments: list[str] | tuple[str, ...] | Mapping[str, Any]) -> "BogieParams":
+        """Apply overrides: a mapping of names to values, or the CLI's ``NAME=VALUE`` strings."""
+        return self.replace(**(dict(assignments) if isinstance(assignments, Mapping) else parse_assignments(assignments)))
 
     def to_dict(self) -> dict[str, float | None]:
         """Parameter name to value, in config order."""
         return {name: getattr(self, name) for name in FIELDS}
 
 
-def load_params(config: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> BogieParams:
-    """Load a preset (default: the paper's) and apply ``NAME=VALUE`` overrides."""
+def parse_assignments(assignments: list[str] | tuple[str, ...]) -> dict[str, float | None]:
+    """The CLI's ``--set NAME=VALUE`` items, parsed and validated once, as ``{name: value}``."""
+    changes: dict[str, float | None] = {}
+    for item in assignments:
+        if "=" not in item:
+            raise ConfigError(f"--set {item!r}: expected NAME=VALUE, e.g. Csy=45000")
+        name, value = (part.strip() for part in item.split("=", 1))
+        changes[name] = validate_value(name, value)
+    return changes
+
+
+def load_params(
+    config: str | Path | None = None, overrides: list[str] | tuple[str, ...] | Mapping[str, Any] = ()
+) -> BogieParams:
+    """Load a preset (default: the paper's) and apply overrides (a mapping, or ``NAME=VALUE`` strings)."""
     params = BogieParams.from_yaml(config)
-    return params.with_overrides(list(overrides)) if overrides else params
+    return params.with_overrides(overrides) if overrides else params

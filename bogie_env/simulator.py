@@ -1,34 +1,176 @@
-"""One batched simulator for N bogies: the layer the environments and analyses share.
+"""The one owner of per-bogie state and the one batch driver.
 
-It owns, per bogie: the 20 states, the speed and its ramp rate, the distance travelled
-(which places the wheelsets on the track profile), and the four actuator channels' lagged
-force and damping. :meth:`BatchSimulator.step` advances all bogies by one control interval
-``dt`` with the compiled RK4 kernel of :mod:`bogie_env.integrate`; the number of substeps
-comes from the measured spectrum (:func:`bogie_env.integrate.stable_substep`).
+:class:`BatchSimulator` holds, per bogie (row): the 20 states, the motion (speed, ramp rate,
+end speed, distance travelled, step count), the bogie coefficients (rows may differ:
+parameter randomisation), the actuator channels' lag states, delay ring, commands and
+outputs, the track under the wheelsets, and a status code. :func:`advance_rows` is the one
+compiled function that advances rows by one control interval; every user steps through it:
+:meth:`BatchSimulator.step` (analyses), :meth:`BatchSimulator.run` (recorded runs, e.g. speed
+ramps) and the environments' task step (:mod:`bogie_env.envs.task`).
+
+Per interval and row: the channel commands pass through their delays
+(:func:`bogie_env.actuators.delayed_targets`); the speed ramps at the row's rate and stops at
+its end speed; :func:`bogie_env.integrate._advance_row` integrates the interval; the lag
+states, speed, distance and track samples move to the end of the interval.
+
+Thread use: below :data:`PARALLEL_MIN_ROWS` rows the batch runs on the calling thread;
+above, on numba's thread pool, over at most ``num_threads`` threads
+(:func:`set_num_threads`, environment variable ``BOGIE_NUM_THREADS``). A row's arithmetic is
+the same whichever loop runs it, so trajectories do not depend on the batch size or the
+thread count (``tests/test_integrate.py``, ``tests/test_envs.py``).
 """
 
 from __future__ import annotations
 
 import math
+import os
 
+import numba
 import numpy as np
+from numba import njit, prange
 
-from .dynamics import N_INPUTS, N_STATES, BogieModel, check_speed
-from .integrate import STATUS_OK, advance_batch_kernel, stable_substep
-from .track import TrackProfile, perfect_track
+from .actuators import CH_DECAY_RATE, DAMPING, DELAY_SLOTS, FORCE, N_CHANNELS, advance_lag, channel_table, delayed_targets
+from .dynamics import N_STATES, P_L1, BogieModel, check_speed
+from .integrate import FASTMATH, N_SCRATCH, STATUS_OK, _advance_row, stable_substep
+from .track import N_TRACK_SAMPLES, TrackInput, TrackProfile, sample_track
+
+# ---- columns of a row's motion -----------------------------------------------------------------
+MOTION_FIELDS = ("speed", "accel", "end_speed", "distance", "steps", "start_speed")
+M_SPEED, M_ACCEL, M_END_SPEED, M_DISTANCE, M_STEPS, M_START_SPEED = range(len(MOTION_FIELDS))
+# speed (m/s) now; nominal ramp rate (m/s^2); speed where the ramp stops (m/s); distance travelled
+# (m); intervals run since the row was set; speed at the start of the last interval (m/s).
+
+# ---- the per-row arrays, in the order of the compiled ``rows`` tuple ---------------------------
+ROW_ARRAYS = ("x", "motion", "coefficients", "lag", "delay", "command", "output", "track_sample", "status")
+
+# ---- threads -------------------------------------------------------------------------------------
+#: Batches smaller than this run on the calling thread: waking the pool costs more than a few
+#: rows, and on a busy host a barrier can take milliseconds (docs/performance.md).
+PARALLEL_MIN_ROWS = 256
+N_CHUNKS = 64  # parallel loops run over contiguous chunks of rows
+
+
+def default_num_threads() -> int:
+    """``BOGIE_NUM_THREADS`` if set, else numba's pool size capped at the usable cores."""
+    value = os.environ.get("BOGIE_NUM_THREADS")
+    if value is not None:
+        try:
+            n = int(value)
+        except ValueError:
+            raise ValueError(f"BOGIE_NUM_THREADS = {value!r} must be an integer >= 1") from None
+        if n < 1:
+            raise ValueError(f"BOGIE_NUM_THREADS = {value!r} must be an integer >= 1")
+        return min(n, numba.config.NUMBA_NUM_THREADS)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, numba.config.NUMBA_NUM_THREADS))
+
+
+def use_threads(n_rows: int, num_threads: int) -> bool:
+    """Whether a batch of n_rows runs on the thread pool (and sets the pool's size if so)."""
+    if n_rows < PARALLEL_MIN_ROWS or num_threads <= 1:
+        return False
+    numba.set_num_threads(num_threads)
+    return True
+
+
+@njit(cache=True, inline="always")
+def chunk_bounds(n_rows, n_chunks, c):
+    """Rows [start, stop) of chunk c when n_rows are split into n_chunks."""
+    return (c * n_rows) // n_chunks, ((c + 1) * n_rows) // n_chunks
+
+
+@njit(cache=True, inline="always")
+def interval_accel(motion, dt):
+    """This interval's ramp rate: the nominal one, cut so the speed stops at the end speed."""
+    a = motion[M_ACCEL]
+    room = (motion[M_END_SPEED] - motion[M_SPEED]) / dt
+    if a > room:
+        a = max(room, 0.0)
+    elif a < 0.0 and a < room:
+        a = min(room, 0.0)
+    return a
+
+
+# Not inlined: the serial and the parallel loop call this one compilation of a run of rows. It
+# takes a run, not one row, because each call increments and decrements the shared arrays'
+# reference counts, and per row those atomic updates made the threads fight over cache lines.
+# error_model="numpy": no division-by-zero checks (a zero divisor gives inf/nan, which the
+# row's finiteness check reports).
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def advance_rows(start, stop, rows, channels, track, dt, n_sub):
+    """Advance rows [start, stop) by one interval dt (see the module docstring)."""
+    x, motion, coefficients, lag, delay, command, output, track_sample, status = rows
+    scratch = np.empty((N_SCRATCH, N_STATES))
+    target = np.empty((2, N_CHANNELS))
+    for n in range(start, stop):
+        m = motion[n]
+        steps = int(m[M_STEPS])
+        delayed_targets(delay[n], steps, command[n], channels, target)
+        v0 = m[M_SPEED]
+        a = interval_accel(m, dt)
+        s0 = m[M_DISTANCE]
+        p = coefficients[n]
+        status[n] = _advance_row(x[n], v0, a, s0, dt, n_sub, lag[n], target, channels, track, p, output[n], scratch)
+        m[M_START_SPEED] = v0
+        m[M_SPEED] = v0 + a * dt
+        m[M_DISTANCE] = s0 + v0 * dt + 0.5 * a * dt * dt
+        m[M_STEPS] = steps + 1
+        advance_lag(lag[n], target, channels, dt)
+        sample_track(track, m[M_DISTANCE], p[P_L1], track_sample[n])
+
+
+@njit(cache=True, fastmath=FASTMATH, parallel=True)
+def _advance_parallel(rows, channels, track, dt, n_sub):
+    n_rows = rows[0].shape[0]
+    n_chunks = min(n_rows, N_CHUNKS)
+    for c in prange(n_chunks):
+        start, stop = chunk_bounds(n_rows, n_chunks, c)
+        advance_rows(start, stop, rows, channels, track, dt, n_sub)
+
+
+@njit(cache=True, fastmath=FASTMATH)
+def _sample_rows(rows, motion, coefficients, track, track_sample):
+    """The track under the wheelsets of some rows, where they are now."""
+    for n in rows:
+        sample_track(track, motion[n, M_DISTANCE], coefficients[n, P_L1], track_sample[n])
+
+
+@njit(cache=True, fastmath=FASTMATH)
+def _run(rows, channels, track, dt, n_sub, n_steps, record_every, states_out, speeds_out):
+    """n_steps intervals on the calling thread, recording every ``record_every`` (before the
+    step) and at the end; stops after a step that leaves any row non-finite. Returns the
+    number of records."""
+    x, motion, _, _, _, _, _, _, status = rows
+    n_rec = 0
+    for step in range(n_steps):
+        if step % record_every == 0:
+            states_out[n_rec] = x
+            speeds_out[n_rec] = motion[:, M_SPEED]
+            n_rec += 1
+        advance_rows(0, x.shape[0], rows, channels, track, dt, n_sub)
+        for n in range(x.shape[0]):
+            if status[n] != STATUS_OK:
+                return n_rec
+    states_out[n_rec] = x
+    speeds_out[n_rec] = motion[:, M_SPEED]
+    return n_rec + 1
 
 
 class BatchSimulator:
-    """N passive or actuated bogies advanced together.
+    """N bogies advanced together, passive or with actuator channels.
 
     Args:
-        model: the bogie physics.
+        model: the bogie physics (every row starts with its coefficients).
         n: number of bogies.
         dt: control interval, s.
         speed_range: (min, max) speed in m/s that the runs will visit; sets the substep.
-        track: shared periodic alignment profile (default perfect track).
-        lag_tau: first-order lag time constant of each actuator channel, s (0: none).
+        track: the track input (a :class:`TrackInput`, or an alignment :class:`TrackProfile`);
+            default perfect track.
+        channels: the channel table (:func:`bogie_env.actuators.channel_table`); default every
+            channel takes force and damping targets, unsaturated, with ``lag_tau``.
+        lag_tau: first-order lag time constant of each channel, s, for the default table.
         n_sub: substeps per interval; default from the spectrum over ``speed_range``.
+        num_threads: threads for large batches (default :func:`default_num_threads`).
     """
 
     def __init__(
@@ -37,9 +179,11 @@ class BatchSimulator:
         n: int,
         dt: float = 0.01,
         speed_range: tuple[float, float] = (250 / 3.6, 650 / 3.6),
-        track: TrackProfile | None = None,
+        track: TrackInput | TrackProfile | None = None,
+        channels: np.ndarray | None = None,
         lag_tau: np.ndarray | float = 0.0,
         n_sub: int | None = None,
+        num_threads: int | None = None,
     ) -> None:
         if int(n) < 1:
             raise ValueError(f"BatchSimulator: n = {n} must be >= 1")
@@ -56,25 +200,59 @@ class BatchSimulator:
         self.speed_range = (lo, hi)
         self.step_choice = stable_substep(model, lo, hi, dt) if n_sub is None else None
         self.n_sub = int(n_sub) if n_sub is not None else self.step_choice.n_sub
-        self.track = track if track is not None else perfect_track()
-        tau = np.broadcast_to(np.asarray(lag_tau, dtype=float), (N_INPUTS,))
-        if np.any(~np.isfinite(tau)) or np.any(tau < 0):
-            raise ValueError(f"BatchSimulator: lag_tau = {lag_tau!r} must be finite and >= 0")
-        self.decay_rate = np.where(tau > 0, 1.0 / np.maximum(tau, 1e-300), 0.0)
-        self.u_max = np.full(N_INPUTS, np.inf)
-        self._inv_dx = 1.0 / self.track.dx
-        self.x = np.zeros((self.n, N_STATES))
-        self.speed = np.full(self.n, lo)
-        self.accel = np.zeros(self.n)
-        self.distance = np.zeros(self.n)
-        self.force = np.zeros((self.n, N_INPUTS))
-        self.damping = np.zeros((self.n, N_INPUTS))
-        self.channel_output = np.zeros((self.n, N_INPUTS))
-        self.channel_power = np.zeros((self.n, N_INPUTS))
-        self.status = np.zeros(self.n, dtype=np.int64)
-        self._zeros = np.zeros((self.n, N_INPUTS))
+        self.track = track if isinstance(track, TrackInput) else TrackInput() if track is None else TrackInput(track)
+        self._track = self.track.compiled()
+        if channels is None:
+            tau = np.broadcast_to(np.asarray(lag_tau, dtype=float), (N_CHANNELS,))
+            if np.any(~np.isfinite(tau)) or np.any(tau < 0):
+                raise ValueError(f"BatchSimulator: lag_tau = {lag_tau!r} must be finite and >= 0")
+            channels = channel_table()
+            channels[:, CH_DECAY_RATE] = np.where(tau > 0, 1.0 / np.maximum(tau, 1e-300), 0.0)
+        self.channels = np.ascontiguousarray(channels, dtype=np.float64)
+        self.num_threads = default_num_threads() if num_threads is None else int(num_threads)
+        n = self.n
+        self.x = np.zeros((n, N_STATES))
+        self.motion = np.zeros((n, len(MOTION_FIELDS)))
+        self.coefficients = np.repeat(model.coefficients[None, :], n, axis=0)
+        self.lag = np.zeros((n, 2, N_CHANNELS))
+        self.delay = np.zeros((n, DELAY_SLOTS, 2, N_CHANNELS))
+        self.command = np.zeros((n, 2, N_CHANNELS))
+        self.output = np.zeros((n, 2, N_CHANNELS))
+        self.track_sample = np.zeros((n, N_TRACK_SAMPLES))
+        self.status = np.zeros(n, dtype=np.int64)
+        self.rows = (self.x, self.motion, self.coefficients, self.lag, self.delay, self.command, self.output,
+                     self.track_sample, self.status)  # fmt: skip
 
-    # ---- state management ----------------------------------------------------------------
+    # ---- named views ------------------------------------------------------------------------
+    @property
+    def speed(self) -> np.ndarray:
+        """Speed of each bogie now, m/s (a view)."""
+        return self.motion[:, M_SPEED]
+
+    @property
+    def distance(self) -> np.ndarray:
+        return self.motion[:, M_DISTANCE]
+
+    @property
+    def channel_output(self) -> np.ndarray:
+        """(N, N_CHANNELS) channel forces at the end of the last interval (N or N m)."""
+        return self.output[:, 0]
+
+    @property
+    def channel_power(self) -> np.ndarray:
+        """(N, N_CHANNELS) mean mechanical power each channel delivered over the last interval (W)."""
+        return self.output[:, 1]
+
+    @property
+    def force(self) -> np.ndarray:
+        """(N, N_CHANNELS) lagged force targets now."""
+        return self.lag[:, FORCE]
+
+    @property
+    def damping(self) -> np.ndarray:
+        return self.lag[:, DAMPING]
+
+    # ---- state management ------------------------------------------------------------------
     def set_rows(
         self,
         rows: np.ndarray | slice,
@@ -82,40 +260,61 @@ class BatchSimulator:
         speed: np.ndarray | float,
         accel: np.ndarray | float = 0.0,
         distance: np.ndarray | float = 0.0,
+        end_speed: np.ndarray | float | None = None,
+        coefficients: np.ndarray | None = None,
     ) -> None:
-        """(Re)initialise some bogies; actuator channels start at rest."""
+        """(Re)initialise some bogies; actuator channels start at rest.
+
+        ``end_speed`` (m/s): where the ramp stops (default: no stop).
+        """
         self.x[rows] = x0
-        self.speed[rows] = check_speed(speed)
-        self.accel[rows] = accel
-        self.distance[rows] = distance
-        self.force[rows] = 0.0
-        self.damping[rows] = 0.0
-        self.channel_output[rows] = 0.0
-        self.channel_power[rows] = 0.0
+        m = self.motion[rows]
+        m[..., M_SPEED] = check_speed(speed)
+        m[..., M_ACCEL] = accel
+        m[..., M_END_SPEED] = np.where(np.asarray(accel) < 0, -np.inf, np.inf) if end_speed is None else end_speed
+        m[..., M_DISTANCE] = distance
+        m[..., M_STEPS] = 0.0
+        m[..., M_START_SPEED] = m[..., M_SPEED]
+        self.motion[rows] = m
+        if coefficients is not None:
+            self.coefficients[rows] = coefficients
+        self.lag[rows] = 0.0
+        self.delay[rows] = 0.0
+        self.command[rows] = 0.0
+        self.output[rows] = 0.0
         self.status[rows] = STATUS_OK
+        _sample_rows(np.atleast_1d(np.arange(self.n)[rows]), self.motion, self.coefficients, self._track, self.track_sample)
 
     def track_displacement(self) -> np.ndarray:
         """Track alignment under each wheelset now, (N, 2) m."""
-        L1 = self.model.params.L1
-        return np.stack([self.track.at(self.distance + L1), self.track.at(self.distance - L1)], axis=1)
+        return self.track.under_wheelsets(self.distance, self.model.params.L1)
 
-    # ---- stepping -------------------------------------------------------------------------
-    def step(self, force_target: np.ndarray | None = None, damping_target: np.ndarray | None = None) -> np.ndarray:
-        """Advance every bogie by ``dt``. Targets are (N, 4); returns the status codes."""
-        f_target = self._zeros if force_target is None else np.ascontiguousarray(force_target, dtype=np.float64)
-        c_target = self._zeros if damping_target is None else np.ascontiguousarray(damping_target, dtype=np.float64)
-        advance_batch_kernel(
-            self.x, self.speed, self.accel, self.distance, self.dt, self.n_sub,
-            self.force, f_target, self.damping, c_target, self.decay_rate, self.u_max,
-            self.track.values, self._inv_dx, self.model.coefficients,
-            self.channel_output, self.channel_power, self.status,
-        )  # fmt: skip
-        if force_target is not None or damping_target is not None or np.any(self.decay_rate):
-            w = np.exp(-self.decay_rate * self.dt)
-            self.force -= f_target
-            self.force *= w
-            self.force += f_target
-            self.damping -= c_target
-            self.damping *= w
-            self.damping += c_target
+    # ---- stepping ----------------------------------------------------------------------------
+    def advance(self) -> np.ndarray:
+        """Advance every bogie by ``dt`` with the commands in :attr:`command`; returns the status."""
+        if use_threads(self.n, self.num_threads):
+            _advance_parallel(self.rows, self.channels, self._track, self.dt, self.n_sub)
+        else:
+            advance_rows(0, self.n, self.rows, self.channels, self._track, self.dt, self.n_sub)
         return self.status
+
+    def step(self, force_target: np.ndarray | None = None, damping_target: np.ndarray | None = None) -> np.ndarray:
+        """Advance every bogie by ``dt`` towards these channel targets, (N, N_CHANNELS) each
+        (default 0); returns the status codes."""
+        self.command[:, FORCE] = 0.0 if force_target is None else force_target
+        self.command[:, DAMPING] = 0.0 if damping_target is None else damping_target
+        return self.advance()
+
+    def run(self, n_steps: int, record_every: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """``n_steps`` passive intervals on the calling thread, recording states and speeds every
+        ``record_every`` steps and at the end. Stops after a step that leaves a row non-finite.
+
+        Returns (states (n_records, N, 20), speeds (n_records, N)).
+        """
+        record_every = max(1, int(record_every))
+        n_records = n_steps // record_every + 2
+        states = np.empty((n_records, self.n, N_STATES))
+        speeds = np.empty((n_records, self.n))
+        self.command[:] = 0.0
+        count = _run(self.rows, self.channels, self._track, self.dt, self.n_sub, int(n_steps), record_every, states, speeds)
+        return states[:count], speeds[:count]

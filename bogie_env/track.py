@@ -20,9 +20,12 @@ rail (rolling radii, gravitational terms, flange contact; see :mod:`bogie_env.dy
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
+
+from .dynamics import N_TRACK
 
 GERMAN_LOW = {"A_a": 2.119e-7, "Omega_c": 0.8246, "Omega_r": 0.0206}
 
@@ -62,6 +65,56 @@ class TrackProfile:
 
 def perfect_track() -> TrackProfile:
     return TrackProfile(np.zeros(0), 1.0)
+
+
+# ---- the track input of the dynamics ------------------------------------------------------
+#: What the dynamics reads from the track, per bogie (its ``yt`` argument): the lateral
+#: alignment under the front and the rear wheelset. Curvature and cant will join here.
+TRACK_SAMPLES: tuple[str, ...] = ("alignment_wheelset1", "alignment_wheelset2")
+ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2 = range(2)
+N_TRACK_SAMPLES = len(TRACK_SAMPLES)
+assert N_TRACK_SAMPLES == N_TRACK
+# Fields of the compiled track tuple (TrackInput.compiled()).
+TRACK_ALIGNMENT, TRACK_ALIGNMENT_INV_DX = range(2)
+
+
+@dataclass(frozen=True)
+class TrackInput:
+    """The track a bogie runs on, by named field: lateral alignment (curvature and cant to come).
+
+    The compiled code reads it as the tuple :meth:`compiled` through :func:`sample_track`.
+    """
+
+    alignment: TrackProfile = field(default_factory=perfect_track)
+
+    def compiled(self) -> tuple[np.ndarray, float]:
+        return (self.alignment.values, 1.0 / self.alignment.dx)
+
+    def under_wheelsets(self, distance: np.ndarray | float, L1: float) -> np.ndarray:
+        """Samples (..., N_TRACK_SAMPLES) at the wheelsets of bogies whose centre is at ``distance``."""
+        distance = np.asarray(distance, dtype=float)
+        return np.stack([self.alignment.at(distance + L1), self.alignment.at(distance - L1)], axis=-1)
+
+
+@njit(cache=True, inline="always")
+def _interpolate(profile, inv_dx, s):
+    """Linear interpolation on a periodic profile sampled every 1/inv_dx metres (empty: 0)."""
+    m = profile.shape[0]
+    if m == 0:
+        return 0.0
+    u = s * inv_dx
+    k = math.floor(u)
+    w = u - k
+    i0 = int(k) % m
+    i1 = (i0 + 1) % m
+    return (1.0 - w) * profile[i0] + w * profile[i1]
+
+
+@njit(cache=True, inline="always")
+def sample_track(track, s, L1, out):
+    """The track samples under the wheelsets of a bogie whose centre is at distance s, into out."""
+    out[ALIGNMENT_WHEELSET1] = _interpolate(track[TRACK_ALIGNMENT], track[TRACK_ALIGNMENT_INV_DX], s + L1)
+    out[ALIGNMENT_WHEELSET2] = _interpolate(track[TRACK_ALIGNMENT], track[TRACK_ALIGNMENT_INV_DX], s - L1)
 
 
 def alignment_profile(

@@ -12,10 +12,11 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 from bogie_agents.vec_env import BogieHuntingSB3VecEnv
 import bogie_env  # noqa: F401  (registers the ids)
 from bogie_env.envs.config import make_config
-from bogie_env.envs.core import HuntingTask
 from bogie_env.envs.hunting_env import BogieHuntingEnv
+from bogie_env.envs.task import HuntingTask
 from bogie_env.envs.vector import BogieHuntingVectorEnv
 from bogie_env.params import ConfigError
+from bogie_env.simulator import PARALLEL_MIN_ROWS
 from bogie_env.stability import critical_speed
 
 SHORT = {"speed": {"start_kmh": 300.0, "end_kmh": 306.0, "accel": 5.0}}  # 0.33 s episodes
@@ -98,19 +99,22 @@ def test_single_vector_and_sb3_envs_give_identical_trajectories():
 
 
 def test_batch_size_does_not_change_a_rows_trajectory():
-    """Rows are independent: a row of a 64-env batch follows exactly the 4-env batch's row."""
-    small, large = HuntingTask(4), HuntingTask(64)
+    """Rows are independent: a row of a 260-env batch (thread pool) follows exactly the 4-env
+    batch's row (calling thread)."""
+    n = 260
+    assert n >= PARALLEL_MIN_ROWS
+    small, large = HuntingTask(4), HuntingTask(n, num_threads=2)
     small.seed_rows(np.arange(4), list(range(4)))
-    large.seed_rows(np.arange(64), [i % 4 for i in range(64)])
+    large.seed_rows(np.arange(n), [i % 4 for i in range(n)])
     small.reset_rows(np.arange(4))
-    large.reset_rows(np.arange(64))
+    large.reset_rows(np.arange(n))
     rng = np.random.default_rng(1)
     for _ in range(100):
         a = rng.uniform(-1, 1, (4, 4))
         small.step(a)
-        large.step(np.tile(a, (16, 1)))
-        assert np.array_equal(small.obs, large.obs[:4]) and np.array_equal(small.x, large.x[:4])
-        assert np.array_equal(small.x, large.x[60:])
+        large.step(np.tile(a, (n // 4, 1)))
+        assert np.array_equal(small.obs, large.obs[:4]) and np.array_equal(small.states, large.states[:4])
+        assert np.array_equal(small.states, large.states[n - 4 :])
 
 
 def test_bad_actions_are_errors_or_documented_clipping():
@@ -248,6 +252,26 @@ def test_vector_env_enforces_max_episode_steps():
     assert trunc.all() and not term.any()
     obs, rew, term, trunc, _ = venv.step(np.zeros((2, 4)))  # NEXT_STEP: the reset step
     assert np.all(rew == 0) and not trunc.any()
+
+
+def test_vector_env_reset_mask_resets_only_the_masked_envs():
+    """Gymnasium's reset(options={"reset_mask": mask}): a masked env restarts exactly as a
+    single env seeded the same way; the others keep their episodes."""
+    venv = BogieHuntingVectorEnv(3)
+    venv.reset(seed=7)
+    for _ in range(20):
+        venv.step(np.full((3, 4), 0.3))
+    before = venv.task.states.copy()
+    mask = np.array([False, True, False])
+    obs, info = venv.reset(seed=100, options={"reset_mask": mask})
+    single = BogieHuntingEnv()
+    single_obs, _ = single.reset(seed=101)  # env i of a vector reset with seed s uses s + i
+    assert np.array_equal(obs[1], single_obs) and info["speed_kmh"][1] == 300.0
+    assert np.array_equal(venv.task.states[[0, 2]], before[[0, 2]])
+    assert np.all(venv.task.speed_kmh[[0, 2]] > 300.0)
+    for bad in (np.array([1, 0, 1]), np.ones(2, dtype=bool)):
+        with pytest.raises(ValueError, match="reset_mask"):
+            venv.reset(options={"reset_mask": bad})
 
 
 def test_gymnasium_vector_wrappers_accept_the_env():

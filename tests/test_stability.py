@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from bogie_env.dynamics import state_index
-from bogie_env.integrate import advance_batch_kernel, stable_substep
+from bogie_env.integrate import stable_substep
+from bogie_env.simulator import BatchSimulator
 from bogie_env.stability import KMH, critical_speed
 
 
@@ -67,12 +68,11 @@ def _envelope_growth(model, speed, duration=24.0, amplitude=1e-7):
     x[0, state_index("y1")] += amplitude
     n_steps = int(duration / 0.01)
     y1 = np.empty(n_steps)
-    v, a, s = np.array([speed]), np.zeros(1), np.zeros(1)
-    zeros, u, power, status = np.zeros((1, 4)), np.zeros((1, 4)), np.zeros((1, 4)), np.zeros(1, np.int64)
+    sim = BatchSimulator(model, 1, 0.01, (speed, speed), n_sub=choice.n_sub)
+    sim.set_rows(0, x[0], speed)
     for k in range(n_steps):
-        advance_batch_kernel(x, v, a, s, 0.01, choice.n_sub, zeros, zeros, zeros, zeros, np.zeros(4), np.full(4, np.inf),
-                             np.zeros(0), 1.0, model.coefficients, u, power, status)
-        y1[k] = x[0, state_index("y1")]
+        sim.step()
+        y1[k] = sim.x[0, state_index("y1")]
     t = 0.01 * np.arange(1, n_steps + 1)
     # peak envelope over 1-s windows after the initial transient
     windows = np.arange(4, int(duration))

@@ -25,8 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..dynamics import LATERAL_STATES, MAX_SPEED, MIN_SPEED, N_STATES, BogieModel, check_speed, state_index
-from ..integrate import STATUS_OK, simulate_ramp_kernel, stable_substep
+from ..dynamics import LATERAL_STATES, N_STATES, BogieModel, check_speed, state_index
+from ..integrate import STATUS_OK, stable_substep
+from ..simulator import BatchSimulator
 from ..stability import KMH, critical_speed
 from ..track import TrackProfile, alignment_profile, perfect_track
 
@@ -97,20 +98,19 @@ def simulate(
         n_sub = stable_substep(model, lo, hi, dt).n_sub
     n_steps = int(round(duration / dt))
     record_every = max(1, int(record_every))
-    n_records = n_steps // record_every + 2
-    states = np.empty((n_records, N_STATES))
-    speeds = np.empty(n_records)
-    count, code = simulate_ramp_kernel(
-        x, float(speed), float(accel), dt, int(n_sub), n_steps, record_every, track.values, 1.0 / track.dx, 0.0,
-        model.coefficients, max(MIN_SPEED, lo - 1e-9), min(MAX_SPEED, hi + 1e-9), states, speeds,
-    )  # fmt: skip
+    sim = BatchSimulator(model, 1, dt, (lo, hi), track, n_sub=int(n_sub))
+    # the ramp stops just past its final speed (rounding of V + a dt must not stop it early)
+    sim.set_rows(0, x, float(speed), float(accel), end_speed=final + (1e-9 if accel >= 0 else -1e-9))
+    states, speeds = sim.run(n_steps, record_every)
+    count = states.shape[0]
+    code = int(sim.status[0])
     time = np.arange(count) * dt * record_every
     if code == STATUS_OK:
         time[-1] = n_steps * dt
     distance = speed * time + 0.5 * accel * time**2
     L1 = model.params.L1
     under = np.stack([track.at(distance + L1), track.at(distance - L1)], axis=1)
-    return Trajectory(time, speeds[:count].copy(), states[:count].copy(), "ok" if code == STATUS_OK else "nonfinite", under)
+    return Trajectory(time, speeds[:, 0].copy(), states[:, 0].copy(), "ok" if code == STATUS_OK else "nonfinite", under)
 
 
 def frozen_eigenvalues(model: BogieModel, trajectory: Trajectory, every_kmh: float = 1.0) -> tuple[np.ndarray, np.ndarray]:

@@ -13,24 +13,14 @@ from typing import Any, Mapping
 
 import yaml
 
-from ..params import CONFIG_DIR, ConfigError
+from ..actuators import CHANNEL_NAMES as CHANNELS
+from ..actuators import CHANNELS as ACTUATOR_CHANNELS
+from ..actuators import MAX_DELAY_STEPS, MODES
+from ..params import CONFIG_DIR, BogieParams, ConfigError, load_params
 
-CHANNELS = ("frame_lateral", "frame_yaw", "wheelset1_yaw", "wheelset2_yaw")
-ACTUATOR_MODES = ("off", "force", "semi_active")
+ACTUATOR_MODES = MODES
 OBSERVATION_TYPES = ("sensors", "state")
-
-# Defaults of the actuators (sources in docs/environment.md):
-# - force limits of order 10 kN lateral, 15 kN m yaw (Fu et al., Railway Engineering Science 28(1), 2020:
-#   secondary yaw/lateral actuators of 5-20 kN);
-# - 10 Hz first-order bandwidth (hunting sits at 2-10 Hz; actuators need 10-20 Hz);
-# - semi-active damping ranges chosen so that the force limit is reached at typical hunting velocities.
-_ACTUATOR_DEFAULTS = {
-    "frame_lateral": {"mode": "force", "max_force": 10e3, "c_min": 0.0, "c_max": 1.0e5, "bandwidth_hz": 10.0, "delay_steps": 0},
-    "frame_yaw": {"mode": "force", "max_force": 15e3, "c_min": 0.0, "c_max": 5.0e5, "bandwidth_hz": 10.0, "delay_steps": 0},
-    "wheelset1_yaw": {"mode": "force", "max_force": 15e3, "c_min": 0.0, "c_max": 1.0e6, "bandwidth_hz": 10.0, "delay_steps": 0},
-    "wheelset2_yaw": {"mode": "force", "max_force": 15e3, "c_min": 0.0, "c_max": 1.0e6, "bandwidth_hz": 10.0, "delay_steps": 0},
-}
-MAX_DELAY_STEPS = 10
+_ACTUATOR_DEFAULTS = {c.name: dict(c.defaults) for c in ACTUATOR_CHANNELS}
 
 
 MIN_SPEED_KMH = 30.0  # the env's speed range; above 850 km/h the model is not meant to be used
@@ -64,6 +54,9 @@ def default_config() -> dict[str, Any]:
         "reward": {"lateral_weight": 0.5, "yaw_weight": 0.2, "effort_weight": 0.2, "time_weight": 0.0,
                    "yaw_reference": 5e-3},  # fmt: skip
         "hunting": {"window_m": 100.0, "rms_fraction": 0.6, "blowup_m": 0.1},
+        # threads for batches of >= simulator.PARALLEL_MIN_ROWS rows (None: BOGIE_NUM_THREADS or
+        # the usable cores); results do not depend on it
+        "num_threads": None,
     }
 
 
@@ -182,7 +175,15 @@ def validate(config: dict) -> dict:
     hu["window_m"] = _number("hunting.window_m", hu["window_m"], 1.0, 1e4)
     hu["rms_fraction"] = _number("hunting.rms_fraction", hu["rms_fraction"], 0.0, 10.0, low_open=True)
     hu["blowup_m"] = _number("hunting.blowup_m", hu["blowup_m"], 0.0, 10.0, low_open=True)
+    t = c["num_threads"]
+    if t is not None and (isinstance(t, bool) or not isinstance(t, int) or t < 1):
+        raise ConfigError(f"config 'num_threads' = {t!r} must be null or an integer >= 1")
     return c
+
+
+def bogie_params(config: Mapping[str, Any]) -> BogieParams:
+    """The bogie of a (validated) env config: its preset with ``bogie_overrides`` applied."""
+    return load_params(config["bogie"], config["bogie_overrides"])
 
 
 #: Named presets behind the registered ids; a user's config merges into its variant's.

@@ -7,24 +7,8 @@ from typing import Any, Mapping
 import gymnasium as gym
 import numpy as np
 
-from . import kernel as K
-from .config import CHANNELS, make_config
-from .core import HuntingTask
-
-
-def info_from_row(task: HuntingTask, row: int) -> dict[str, Any]:
-    """The step info of one environment (see the class docstring)."""
-    info = task.info[row]
-    onset = float(info[K.I_ONSET_KMH])
-    return {
-        "speed_kmh": float(info[K.I_SPEED_KMH]),
-        "hunting": bool(task.flags[row, 2]),
-        "onset_speed_kmh": None if np.isnan(onset) else onset,
-        "lateral_rms_m": info[K.I_RMS1 : K.I_RMS2 + 1].copy(),
-        "actuator_force": info[K.I_FORCE : K.I_FORCE + 4].copy(),
-        "actuator_power": info[K.I_POWER : K.I_POWER + 4].copy(),
-        "blowup": bool(task.flags[row, 3]),
-    }
+from .config import make_config
+from .task import HuntingTask
 
 
 class BogieHuntingEnv(gym.Env):
@@ -173,17 +157,18 @@ class BogieHuntingEnv(gym.Env):
         self._episode_steps = 0
         if self.render_mode == "human":
             self.render()
-        return self.task.obs[0].copy(), info_from_row(self.task, 0)
+        return self.task.obs[0].copy(), self.task.info_dict(0)
 
     def step(self, action):
-        self.task.step(action)
+        task = self.task
+        task.step(action)
         self._episode_steps += 1
-        flags = self.task.flags[0]
-        obs = self.task.obs[0].copy()
-        truncated = bool(flags[1]) or self._episode_steps >= self.max_episode_steps
+        obs = task.obs[0].copy()
+        terminated, truncated = task.episode_end(0)
+        truncated = truncated or self._episode_steps >= self.max_episode_steps
         if self.render_mode == "human":
             self.render()
-        return obs, float(self.task.reward[0]), bool(flags[0]), truncated, info_from_row(self.task, 0)
+        return obs, float(task.reward[0]), terminated, truncated, task.info_dict(0)
 
     def render(self):
         if self.render_mode is None:
@@ -202,4 +187,4 @@ class BogieHuntingEnv(gym.Env):
 
     @property
     def channel_names(self) -> tuple[str, ...]:
-        return tuple(CHANNELS[k] for k in self.task.active_channels)
+        return self.task.channel_names

@@ -61,7 +61,7 @@ class BogieRenderer:
         e, L1, delta = p[P_E], p[P_L1], p[P_DELTA]
         g = LATERAL_GAIN
         self.surface.fill((245, 245, 240))
-        distance = task.scal[row, 2]
+        distance = task.distance_m[row]
         xs = np.linspace(-WIDTH / 2 / PIXELS_PER_M, WIDTH / 2 / PIXELS_PER_M, 60)
         alignment = task.track.at(distance + xs) if task.track.values.size else np.zeros_like(xs)
         for side in (1.0, -1.0):
@@ -76,11 +76,10 @@ class BogieRenderer:
             for side in (1.0, -1.0):
                 self._box(x_pos - side * e * g * psi, side * e + g * y, g * psi, 0.92, 0.12, (20, 20, 20))
         self._box(0.0, g * x[16], g * x[18], 2 * L1 + 0.6, 2 * e - 0.2, (30, 140, 60), filled=False)
-        info = task.info[row]
-        hunting = bool(task.flags[row, 2])
+        hunting = bool(task.hunting[row])
         lines = [
-            f"speed {info[0]:6.1f} km/h",
-            f"rms |y - track| {1e3 * max(info[2], info[3]):5.2f} mm (hunting at {1e3 * task.config['hunting']['rms_fraction'] * delta:.1f})",
+            f"speed {task.speed_kmh[row]:6.1f} km/h",
+            f"rms |y - track| {1e3 * task.lateral_rms_m[row].max():5.2f} mm (hunting at {1e3 * task.config['hunting']['rms_fraction'] * delta:.1f})",
             f"lateral x{g:g}" + ("   HUNTING" if hunting else ""),
         ]
         for k, text in enumerate(lines):

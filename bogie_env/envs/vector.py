@@ -19,10 +19,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from . import kernel as K
 from .config import make_config
-from .core import HuntingTask
-from .hunting_env import info_from_row
+from .task import HuntingTask
 
 
 def _seeds(seed: int | Sequence[int | None] | None, n: int, rng: np.random.Generator) -> list[int]:
@@ -34,26 +32,6 @@ def _seeds(seed: int | Sequence[int | None] | None, n: int, rng: np.random.Gener
     if len(seeds) != n:
         raise ValueError(f"got {len(seeds)} seeds for {n} environments")
     return [int(s) if s is not None else int(rng.integers(2**63)) for s in seeds]
-
-
-def batched_infos(task: HuntingTask) -> dict[str, np.ndarray]:
-    """Gymnasium vector infos: arrays plus boolean ``_key`` masks (all True)."""
-    info = task.info
-    mask = np.ones(task.num_envs, dtype=bool)
-    values = {
-        "speed_kmh": info[:, K.I_SPEED_KMH].copy(),
-        "hunting": task.flags[:, 2].astype(bool),
-        "onset_speed_kmh": info[:, K.I_ONSET_KMH].copy(),
-        "lateral_rms_m": info[:, K.I_RMS1 : K.I_RMS2 + 1].copy(),
-        "actuator_force": info[:, K.I_FORCE : K.I_FORCE + 4].copy(),
-        "actuator_power": info[:, K.I_POWER : K.I_POWER + 4].copy(),
-        "blowup": task.flags[:, 3].astype(bool),
-    }
-    out: dict[str, np.ndarray] = {}
-    for key, value in values.items():
-        out[key] = value
-        out[f"_{key}"] = mask.copy()
-    return out
 
 
 class BogieHuntingVectorEnv(VectorEnv):
@@ -91,21 +69,34 @@ class BogieHuntingVectorEnv(VectorEnv):
         self._seeded = False
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: Mapping[str, Any] | None = None):
+        """Reset every env, or with ``options={"reset_mask": mask}`` (bool, (num_envs,)) only the
+        masked ones (Gymnasium's convention); the others keep their episodes."""
         super().reset(seed=seed)
-        rows = np.arange(self.num_envs)
+        options = dict(options or {})
+        mask = options.pop("reset_mask", None)
+        if mask is None:
+            rows = np.arange(self.num_envs)
+        else:
+            mask = np.asarray(mask)
+            if mask.dtype != np.bool_ or mask.shape != (self.num_envs,):
+                raise ValueError(
+                    f"reset_mask must be a bool array of shape ({self.num_envs},); got dtype {mask.dtype}, shape {mask.shape}"
+                )
+            rows = np.nonzero(mask)[0]
         if seed is not None or not self._seeded:
-            self.task.seed_rows(rows, _seeds(seed, self.num_envs, self.np_random))
+            seeds = _seeds(seed, self.num_envs, self.np_random)
+            self.task.seed_rows(rows, [seeds[i] for i in rows])
             self._seeded = True
-        self.task.reset_rows(rows, options)
-        self._episode_steps[:] = 0
-        self._autoreset[:] = False
-        return self.task.obs.copy(), batched_infos(self.task)
+        self.task.reset_rows(rows, options or None)
+        self._episode_steps[rows] = 0
+        self._autoreset[rows] = False
+        return self.task.obs.copy(), self.task.batched_infos()
 
     def step(self, actions):
         self.task.step(actions)
         self._episode_steps += 1
-        terminated = self.task.flags[:, 0].astype(bool)
-        truncated = self.task.flags[:, 1].astype(bool) | (self._episode_steps >= self.max_episode_steps)
+        terminated = self.task.terminated
+        truncated = self.task.truncated | (self._episode_steps >= self.max_episode_steps)
         rewards = self.task.reward.copy()
         restarting = np.nonzero(self._autoreset)[0]
         if restarting.size:  # NEXT_STEP: these finished last step; this step is their reset
@@ -115,7 +106,7 @@ class BogieHuntingVectorEnv(VectorEnv):
             terminated[restarting] = False
             truncated[restarting] = False
         self._autoreset = terminated | truncated
-        return self.task.obs.copy(), rewards, terminated, truncated, batched_infos(self.task)
+        return self.task.obs.copy(), rewards, terminated, truncated, self.task.batched_infos()
 
     def render(self):
         if self.render_mode is None:

@@ -1,0 +1,587 @@
+"""The hunting-control task over the simulator's rows (dm_control's Physics/Task split).
+
+:class:`HuntingTask` builds, from a validated env config (``envs/config.py``), a
+:class:`bogie_env.simulator.BatchSimulator` (the physics: states, motion, actuators, track)
+and the task's own per-row arrays: the hunting detector, observations, rewards, flags and
+infos. One env step of N rows is one compiled call, per run of rows:
+
+1. the actions become channel commands (:func:`bogie_env.actuators.command_from_action`);
+2. the simulator's driver advances the rows (:func:`bogie_env.simulator.advance_rows`);
+3. small named functions read the rows: :func:`_detect_hunting`, :func:`_reward`,
+   :func:`_write_info`, :func:`_observe`.
+
+The three environment classes are front-ends that differ only in how they reset finished
+episodes. ``agents/`` and the front-ends read results through the public vocabulary below
+(``observe()``, ``hunting``, ``terminated``, ``actuator_force``, ``speed_kmh`` ...), never the
+packed columns.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+from gymnasium import spaces
+from numba import njit, prange
+
+from ..actuators import (
+    CH_C_MAX,
+    CH_MODE,
+    CHANNEL_NAMES,
+    MODE_SEMI,
+    N_CHANNELS,
+    active_channels,
+    channel_table,
+    command_from_action,
+    damping_jacobian,
+    generalised_forces,
+    saturation,
+)
+from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _rhs_row, state_index
+from ..integrate import FASTMATH, OUT_FORCE, OUT_POWER, STATUS_OK, stable_substep
+from ..params import BogieParams, ConfigError
+from ..simulator import (
+    M_ACCEL,
+    M_DISTANCE,
+    M_END_SPEED,
+    M_SPEED,
+    M_START_SPEED,
+    N_CHUNKS,
+    BatchSimulator,
+    advance_rows,
+    chunk_bounds,
+    use_threads,
+)
+from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, TrackInput, alignment_profile, perfect_track
+from .config import bogie_params, make_config
+
+KMH = 3.6
+
+# ---- the task's per-row arrays -----------------------------------------------------------------
+# hunting detector: exponentially weighted mean squares of the wheelsets' displacement
+# relative to the rail, and the onset speed (km/h, NaN until hunting)
+E_MEAN_SQUARE1, E_MEAN_SQUARE2, E_ONSET_KMH = range(3)
+N_EPISODE = 3
+FLAGS = ("terminated", "truncated", "hunting", "blowup")
+F_TERMINATED, F_TRUNCATED, F_HUNTING, F_BLOWUP = range(len(FLAGS))
+# info columns: speed, onset speed, the two wheelsets' rms, then per channel force and power
+I_SPEED_KMH, I_ONSET_KMH, I_RMS1, I_RMS2 = range(4)
+I_FORCE = 4
+I_POWER = I_FORCE + N_CHANNELS
+N_INFO = I_POWER + N_CHANNELS
+
+# ---- the task's settings, one float vector for the compiled code -------------------------------
+(C_OBS_STATE, C_OBS_ACT, C_W_LAT, C_W_YAW, C_W_EFF, C_W_TIME, C_YAW_REF, C_WINDOW_M, C_HUNT_RMS_FRACTION,
+ C_BLOWUP, C_N_ACTIVE) = range(11)  # fmt: skip
+N_TASK_SETTINGS = 11
+
+# ---- observation ----------------------------------------------------------------------------------
+OBS_BOUND = 10.0
+#: The "sensors" observation: these, then the speed, then the active channels' forces.
+SENSORS = ("frame_lateral_accel", "frame_yaw_rate", "wheelset1_lateral_rel", "wheelset2_lateral_rel",
+           "wheelset1_yaw_rel", "wheelset2_yaw_rel")  # fmt: skip
+(SENSOR_FRAME_LATERAL_ACCEL, SENSOR_FRAME_YAW_RATE, SENSOR_WHEELSET1_LATERAL, SENSOR_WHEELSET2_LATERAL,
+ SENSOR_WHEELSET1_YAW, SENSOR_WHEELSET2_YAW) = range(len(SENSORS))  # fmt: skip
+N_SENSORS = len(SENSORS) + 1  # and the speed
+# sensor scales: what counts as "1" in the observation
+ACCEL_SCALE = 5.0  # m/s^2
+YAW_RATE_SCALE = 0.1  # rad/s
+REL_YAW_SCALE = 5e-3  # rad
+SPEED_CENTRE_KMH = 450.0
+SPEED_SCALE_KMH = 150.0
+#: Scales of the full-state observation ("state" type): what counts as 1 for each state.
+STATE_SCALES = np.array([9e-3, 0.1, 1e-3, 0.05, 5e-3, 0.1, 5e-3, 0.1] * 2 + [9e-3, 0.1, 5e-3, 0.05], dtype=float)
+
+def speed_index(observation_type: str) -> int:
+    """Where the speed sits in an observation of this type."""
+    return N_STATES if observation_type == "state" else len(SENSORS)
+
+
+def speed_kmh_from_observation(obs: np.ndarray, observation_type: str) -> np.ndarray:
+    """The speed (km/h) read back from a batch of observations."""
+    return obs[:, speed_index(observation_type)].astype(float) * SPEED_SCALE_KMH + SPEED_CENTRE_KMH
+
+
+Y1, Y2, YB = state_index("y1"), state_index("y2"), state_index("yb")
+PSI1, PSI2, PSIB = state_index("psi1"), state_index("psi2"), state_index("psib")
+DYB, DPSIB = state_index("dyb"), state_index("dpsib")
+
+
+@njit(cache=True, inline="always")
+def _clip(value, bound):
+    return min(max(value, -bound), bound)
+
+
+@njit(cache=True, inline="always")
+def _relative_lateral(x, track_sample):
+    """The wheelsets' lateral displacement relative to the rail."""
+    return x[Y1] - track_sample[ALIGNMENT_WHEELSET1], x[Y2] - track_sample[ALIGNMENT_WHEELSET2]
+
+
+@njit(cache=True, inline="always")
+def _detect_hunting(episode, y_rel1, y_rel2, v1, dt, delta, cfg):
+    """Update the detector's mean squares over ``window_m`` of track; returns (rms1, rms2, hunting)."""
+    weight = 1.0 - math.exp(-dt * v1 / cfg[C_WINDOW_M])
+    episode[E_MEAN_SQUARE1] += weight * (y_rel1 * y_rel1 - episode[E_MEAN_SQUARE1])
+    episode[E_MEAN_SQUARE2] += weight * (y_rel2 * y_rel2 - episode[E_MEAN_SQUARE2])
+    rms1 = math.sqrt(max(episode[E_MEAN_SQUARE1], 0.0))
+    rms2 = math.sqrt(max(episode[E_MEAN_SQUARE2], 0.0))
+    hunting = max(rms1, rms2) > cfg[C_HUNT_RMS_FRACTION] * delta
+    if hunting and math.isnan(episode[E_ONSET_KMH]):
+        episode[E_ONSET_KMH] = v1 * 3.6
+    return rms1, rms2, hunting
+
+
+@njit(cache=True, inline="always")
+def _reward(x, y_rel1, y_rel2, v0, v1, dt, delta, u_end, channels, cfg):
+    """Progress (km/h gained, plus optional time) times (1 - bounded penalties)."""
+    psi_ref = cfg[C_YAW_REF]
+    lat_pen = 0.5 * (min((y_rel1 / delta) ** 2, 1.0) + min((y_rel2 / delta) ** 2, 1.0))
+    d1 = (x[PSI1] - x[PSIB]) / psi_ref
+    d2 = (x[PSI2] - x[PSIB]) / psi_ref
+    yaw_pen = 0.5 * (min(d1 * d1, 1.0) + min(d2 * d2, 1.0))
+    eff_pen = 0.0
+    for k in range(N_CHANNELS):
+        u_max = saturation(channels, k)
+        if u_max > 0.0:
+            eff_pen += min((u_end[k] / u_max) ** 2, 1.0)
+    if cfg[C_N_ACTIVE] > 0:
+        eff_pen /= cfg[C_N_ACTIVE]
+    penalty = cfg[C_W_LAT] * lat_pen + cfg[C_W_YAW] * yaw_pen + cfg[C_W_EFF] * eff_pen
+    progress = (v1 - v0) * 3.6 + cfg[C_W_TIME] * dt
+    return progress * (1.0 - penalty)
+
+
+@njit(cache=True, inline="always")
+def _write_info(info, v1, onset_kmh, rms1, rms2, output):
+    info[I_SPEED_KMH] = v1 * 3.6
+    info[I_ONSET_KMH] = onset_kmh
+    info[I_RMS1] = rms1
+    info[I_RMS2] = rms2
+    for k in range(N_CHANNELS):
+        info[I_FORCE + k] = output[OUT_FORCE, k]
+        info[I_POWER + k] = output[OUT_POWER, k]
+
+
+@njit(cache=True, inline="always")
+def _observe(obs, x, v1, p, track_sample, u_end, channels, cfg, state_scales, scratch):
+    """One row's observation: sensors (or scaled states), speed, actuator forces."""
+    m = 0
+    if cfg[C_OBS_STATE] > 0.5:
+        for i in range(N_STATES):
+            obs[i] = _clip(x[i] / state_scales[i], OBS_BOUND)
+        m = N_STATES
+    else:
+        # frame lateral acceleration needs the right-hand side at the end state
+        q = scratch[1, :N_INPUTS]
+        generalised_forces(u_end, q)
+        _rhs_row(x, v1, q, track_sample, p, scratch[0])
+        L1 = p[P_L1]
+        delta = p[P_DELTA]
+        psib = x[PSIB]
+        obs[SENSOR_FRAME_LATERAL_ACCEL] = _clip(scratch[0, DYB] / ACCEL_SCALE, OBS_BOUND)
+        obs[SENSOR_FRAME_YAW_RATE] = _clip(x[DPSIB] / YAW_RATE_SCALE, OBS_BOUND)
+        obs[SENSOR_WHEELSET1_LATERAL] = _clip((x[Y1] - x[YB] - L1 * psib) / delta, OBS_BOUND)
+        obs[SENSOR_WHEELSET2_LATERAL] = _clip((x[Y2] - x[YB] + L1 * psib) / delta, OBS_BOUND)
+        obs[SENSOR_WHEELSET1_YAW] = _clip((x[PSI1] - psib) / REL_YAW_SCALE, OBS_BOUND)
+        obs[SENSOR_WHEELSET2_YAW] = _clip((x[PSI2] - psib) / REL_YAW_SCALE, OBS_BOUND)
+        m = len(SENSORS)
+    obs[m] = _clip((v1 * 3.6 - SPEED_CENTRE_KMH) / SPEED_SCALE_KMH, OBS_BOUND)
+    m += 1
+    if cfg[C_OBS_ACT] > 0.5:
+        for k in range(N_CHANNELS):
+            u_max = saturation(channels, k)
+            if u_max > 0.0:
+                obs[m] = _clip(u_end[k] / u_max, OBS_BOUND)
+                m += 1
+
+
+@njit(cache=True, inline="always")
+def _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch):
+    """Detector, flags, reward, info and observation of row n after its interval."""
+    x, motion, coefficients, _, _, _, output, track_sample, status = sim_rows
+    episode, obs, reward, flags, info = task_rows
+    m = motion[n]
+    p = coefficients[n]
+    delta = p[P_DELTA]
+    v1 = m[M_SPEED]
+    y_rel1, y_rel2 = _relative_lateral(x[n], track_sample[n])
+    rms1, rms2, hunting = _detect_hunting(episode[n], y_rel1, y_rel2, v1, dt, delta, cfg)
+    blowup = status[n] != STATUS_OK or abs(y_rel1) > cfg[C_BLOWUP] or abs(y_rel2) > cfg[C_BLOWUP]
+    terminated = hunting or blowup
+    truncated = (not terminated) and v1 >= m[M_END_SPEED] - 1e-9 and m[M_ACCEL] > 0.0
+    flags[n, F_TERMINATED] = 1 if terminated else 0
+    flags[n, F_TRUNCATED] = 1 if truncated else 0
+    flags[n, F_HUNTING] = 1 if hunting else 0
+    flags[n, F_BLOWUP] = 1 if blowup else 0
+    u_end = output[n, OUT_FORCE]
+    rew = _reward(x[n], y_rel1, y_rel2, m[M_START_SPEED], v1, dt, delta, u_end, channels, cfg)
+    reward[n] = rew if not blowup else 0.0
+    _write_info(info[n], v1, episode[n, E_ONSET_KMH], rms1, rms2, output[n])
+    _observe(obs[n], x[n], v1, p, track_sample[n], u_end, channels, cfg, state_scales, scratch)
+
+
+# Not inlined: the serial call and the parallel loop run this one compilation of a run of rows.
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales):
+    """One env step of rows [start, stop): actions -> commands -> the simulator's interval -> task."""
+    command = sim_rows[5]
+    for n in range(start, stop):
+        for k in range(N_CHANNELS):
+            command_from_action(channels, k, action[n], command[n])
+    advance_rows(start, stop, sim_rows, channels, track, dt, n_sub)
+    scratch = np.empty((2, N_STATES))
+    for n in range(start, stop):
+        _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch)
+
+
+@njit(cache=True, fastmath=FASTMATH, parallel=True)
+def _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales):
+    n_rows = action.shape[0]
+    n_chunks = min(n_rows, N_CHUNKS)
+    for c in prange(n_chunks):
+        start, stop = chunk_bounds(n_rows, n_chunks, c)
+        _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales)
+
+
+@njit(cache=True, fastmath=FASTMATH)
+def _observe_rows(rows, sim_rows, channels, obs, cfg, state_scales):
+    """Observations of some rows from their current state (channels at their last output)."""
+    x, motion, coefficients, _, _, _, output, track_sample, _ = sim_rows
+    scratch = np.empty((2, N_STATES))
+    for n in rows:
+        u_end = output[n, OUT_FORCE]
+        _observe(obs[n], x[n], motion[n, M_SPEED], coefficients[n], track_sample[n], u_end, channels, cfg, state_scales, scratch)
+
+
+class HuntingTask:
+    """N hunting-control episodes over one :class:`BatchSimulator`.
+
+    Public vocabulary (arrays over the N rows): :attr:`obs`, :attr:`reward`, :attr:`terminated`,
+    :attr:`truncated`, :attr:`hunting`, :attr:`blowup`, :attr:`speed_kmh`,
+    :attr:`onset_speed_kmh`, :attr:`lateral_rms_m`, :attr:`relative_lateral_m`,
+    :attr:`actuator_force`, :attr:`actuator_power`, :attr:`actuator_limits`, :attr:`states`,
+    :attr:`flange_clearance`; and :meth:`reset_rows`, :meth:`step`, :meth:`set_states`,
+    :meth:`observe`.
+    """
+
+    def __init__(self, num_envs: int, config: Mapping[str, Any] | str | None = None, **overrides: Any) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ConfigError(f"num_envs = {num_envs!r} must be an integer >= 1")
+        self.num_envs = n = int(num_envs)
+        self.config = c = make_config(config, **overrides)
+        self.base_params: BogieParams = bogie_params(c)
+        self.model = BogieModel(self.base_params)
+        tr = c["track"]
+        alignment = (
+            alignment_profile(tr["rms"], tr["wavelength_min"], tr["wavelength_max"], seed=tr["seed"])
+            if tr["rms"] > 0
+            else perfect_track()
+        )
+        self.track_input = TrackInput(alignment)
+        # actuator channels -> action columns
+        self.active_channels = active_channels(c["actuators"])
+        self.channel_names = tuple(CHANNEL_NAMES[k] for k in self.active_channels)
+        self.action_dim = max(1, len(self.active_channels))
+        self.passive = not self.active_channels
+        self.observation_dim = (N_STATES if c["observation"]["type"] == "state" else N_SENSORS - 1) + 1
+        if c["observation"]["include_actuators"]:
+            self.observation_dim += len(self.active_channels)
+        self.action_space = spaces.Box(-1.0, 1.0, (self.action_dim,), np.float32)
+        self.observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, (self.observation_dim,), np.float32)
+        self.channels = channel_table(c["actuators"])
+        self.settings = self._task_settings()
+        self.state_scales = STATE_SCALES.copy()
+        # Step size from the spectrum over the whole speed range, dampers at their stiffest.
+        lo, hi = self.speed_limits()
+        semi = self.channels[:, CH_MODE] == MODE_SEMI
+        max_damping = np.where(semi, self.channels[:, CH_C_MAX], 0.0)
+        extra = damping_jacobian(self.model.input_matrix(), max_damping) if np.any(max_damping) else None
+        self.step_choice = stable_substep(self.model, lo, hi, c["dt"], extra_jacobian=extra)
+        self.n_sub = self.step_choice.n_sub
+        self.sim = BatchSimulator(self.model, n, c["dt"], (lo, hi), self.track_input, self.channels, n_sub=self.n_sub,
+                                  num_threads=c["num_threads"])  # fmt: skip
+        # the task's per-row arrays
+        self.episode = np.zeros((n, N_EPISODE))
+        self.obs = np.zeros((n, self.observation_dim), dtype=np.float32)
+        self.reward = np.zeros(n)
+        self.flags = np.zeros((n, len(FLAGS)), dtype=np.int8)
+        self.info = np.zeros((n, N_INFO))
+        self._task_rows = (self.episode, self.obs, self.reward, self.flags, self.info)
+        self.actions = np.zeros((n, self.action_dim))
+        self.rngs = [np.random.default_rng() for _ in range(n)]
+        self.episode_params: list[dict[str, float]] = [{} for _ in range(n)]
+
+    # ---- configuration ----------------------------------------------------------------------
+    def speed_limits(self) -> tuple[float, float]:
+        """Lowest and highest speed (m/s) any episode can visit under this config."""
+        sp = self.config["speed"]
+        lows = [sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else [])
+        highs = [sp["end_kmh"]] + ([sp["end_kmh_range"][1]] if sp["end_kmh_range"] else [])
+        return min(lows) / KMH, max(highs) / KMH
+
+    def _task_settings(self) -> np.ndarray:
+        c = self.config
+        cfg = np.zeros(N_TASK_SETTINGS)
+        cfg[C_OBS_STATE] = 1.0 if c["observation"]["type"] == "state" else 0.0
+        cfg[C_OBS_ACT] = 1.0 if c["observation"]["include_actuators"] else 0.0
+        rw = c["reward"]
+        cfg[C_W_LAT], cfg[C_W_YAW], cfg[C_W_EFF] = rw["lateral_weight"], rw["yaw_weight"], rw["effort_weight"]
+        cfg[C_W_TIME], cfg[C_YAW_REF] = rw["time_weight"], rw["yaw_reference"]
+        hu = c["hunting"]
+        cfg[C_WINDOW_M], cfg[C_HUNT_RMS_FRACTION], cfg[C_BLOWUP] = hu["window_m"], hu["rms_fraction"], hu["blowup_m"]
+        cfg[C_N_ACTIVE] = len(self.active_channels)
+        return cfg
+
+    # ---- episodes -----------------------------------------------------------------------------
+    def seed_rows(self, rows: np.ndarray, seeds: list[int | None]) -> None:
+        for i, s in zip(rows, seeds):
+            self.rngs[i] = np.random.default_rng(s)
+
+    def reset_rows(self, rows: np.ndarray, options: Mapping[str, Any] | None = None) -> None:
+        """Start new episodes in ``rows`` (their RNGs must already be seeded)."""
+        options = dict(options or {})
+        unknown = set(options) - {"start_kmh", "end_kmh", "accel", "params"}
+        if unknown:
+            raise ConfigError(f"unknown reset option(s) {sorted(unknown)}; allowed: start_kmh, end_kmh, accel, params")
+        sp = self.config["speed"]
+        alignment = self.track_input.alignment
+        rows = np.atleast_1d(rows)
+        for i in rows:
+            rng = self.rngs[i]
+            start = self._draw(rng, options.get("start_kmh"), sp["start_kmh"], sp["start_kmh_range"], "start_kmh")
+            end = self._draw(rng, options.get("end_kmh"), sp["end_kmh"], sp["end_kmh_range"], "end_kmh")
+            accel = self._draw(rng, options.get("accel"), sp["accel"], sp["accel_range"], "accel")
+            lo, hi = self.speed_limits()
+            if not (lo - 1e-9 <= start / KMH and end / KMH <= hi + 1e-9 and start <= end):
+                raise ConfigError(
+                    f"reset speeds start_kmh={start:g}, end_kmh={end:g} must satisfy "
+                    f"{lo * KMH:g} <= start_kmh <= end_kmh <= {hi * KMH:g} (the range the step size was chosen for)"
+                )
+            factors = {name: float(rng.uniform(*bounds)) for name, bounds in self.config["randomize"].items()}
+            factors.update(options.get("params", {}) or {})
+            model = BogieModel(self.base_params.scaled(**factors)) if factors else self.model
+            self.episode_params[i] = factors
+            x = model.equilibrium(start / KMH)
+            sigma = self.config["initial_perturbation"]
+            offsets = rng.normal(0.0, sigma, 3)
+            yaws = rng.normal(0.0, sigma / (2 * self.base_params.L1), 3)
+            if self.config["large_perturbation_probability"] > 0 and rng.random() < self.config["large_perturbation_probability"]:
+                size = self.config["large_perturbation"]
+                offsets = rng.uniform(0.5, 1.0, 3) * size * rng.choice([-1.0, 1.0], 3)
+            x[[Y1, Y2, YB]] += offsets
+            x[[PSI1, PSI2, PSIB]] += yaws
+            distance = rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
+            self.sim.set_rows(i, x, start / KMH, accel, distance, end_speed=end / KMH, coefficients=model.coefficients)
+            self.episode[i] = 0.0
+            self.episode[i, E_ONSET_KMH] = np.nan
+            self.flags[i] = 0
+            self.info[i] = 0.0
+            self.info[i, I_SPEED_KMH] = start
+            self.info[i, I_ONSET_KMH] = np.nan
+        self.observe(rows)
+        self._add_noise(rows)
+
+    @staticmethod
+    def _draw(rng, forced, value, bounds, name) -> float:
+        if forced is not None:
+            if isinstance(forced, bool) or not isinstance(forced, (int, float)) or not math.isfinite(forced):
+                raise ConfigError(f"reset option {name!r} = {forced!r} must be a finite number")
+            return float(forced)
+        return float(rng.uniform(*bounds)) if bounds else float(value)
+
+    def set_states(self, states: np.ndarray, rows: np.ndarray | slice = slice(None)) -> None:
+        """Replace the bogie states of some rows (e.g. starts on a limit cycle) and refresh their
+        observations."""
+        self.sim.x[rows] = states
+        self.observe(np.arange(self.num_envs)[rows])
+
+    def observe(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """Recompute the observations of ``rows`` (default all) from the current state, without
+        noise; returns :attr:`obs`."""
+        rows = np.arange(self.num_envs) if rows is None else np.atleast_1d(np.asarray(rows, dtype=np.int64))
+        _observe_rows(rows, self.sim.rows, self.channels, self.obs, self.settings, self.state_scales)
+        return self.obs
+
+    # ---- stepping -------------------------------------------------------------------------------
+    def check_actions(self, actions: Any) -> np.ndarray:
+        """(N, action_dim) finite actions, clipped to [-1, 1]; anything else raises."""
+        a = np.asarray(actions, dtype=np.float64)
+        if a.shape != (self.num_envs, self.action_dim):
+            if self.num_envs == 1 and a.shape == (self.action_dim,):
+                a = a[None, :]
+            else:
+                raise ValueError(
+                    f"action has shape {np.shape(actions)}; expected ({self.num_envs}, {self.action_dim})"
+                    + (f" or ({self.action_dim},)" if self.num_envs == 1 else "")
+                )
+        if not np.all(np.isfinite(a)):
+            bad = np.argwhere(~np.isfinite(a))[0]
+            raise ValueError(
+                f"action contains NaN or inf (env {bad[0]}, component {bad[1]}: {a[tuple(bad)]!r}); "
+                "actions must be finite and are clipped to [-1, 1]"
+            )
+        np.clip(a, -1.0, 1.0, out=self.actions)
+        return self.actions
+
+    def step(self, actions: Any) -> None:
+        """Advance every row by one env step."""
+        a = self.check_actions(actions)
+        sim = self.sim
+        args = (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, a, self._task_rows, self.settings, self.state_scales)
+        if use_threads(self.num_envs, sim.num_threads):
+            _step_parallel(*args)
+        else:
+            _step_rows(0, self.num_envs, *args)
+        if self.config["observation"]["noise"] > 0:
+            self._add_noise(np.arange(self.num_envs))
+
+    def _add_noise(self, rows: np.ndarray) -> None:
+        noise = self.config["observation"]["noise"]
+        if noise > 0:
+            for i in np.atleast_1d(rows):
+                self.obs[i] += (noise * self.rngs[i].standard_normal(self.observation_dim)).astype(np.float32)
+            np.clip(self.obs, -OBS_BOUND, OBS_BOUND, out=self.obs)
+
+    # ---- vocabulary -------------------------------------------------------------------------------
+    @property
+    def states(self) -> np.ndarray:
+        """(N, 20) bogie states (a view; ``bogie_env.STATE_NAMES``)."""
+        return self.sim.x
+
+    x = states
+
+    @property
+    def P(self) -> np.ndarray:
+        """(N, K) bogie coefficients of each row (a view)."""
+        return self.sim.coefficients
+
+    @property
+    def track(self):
+        """The track's alignment profile."""
+        return self.track_input.alignment
+
+    @property
+    def speed_kmh(self) -> np.ndarray:
+        return self.sim.motion[:, M_SPEED] * KMH
+
+    @property
+    def distance_m(self) -> np.ndarray:
+        return self.sim.motion[:, M_DISTANCE]
+
+    @property
+    def terminated(self) -> np.ndarray:
+        return self.flags[:, F_TERMINATED].astype(bool)
+
+    @property
+    def truncated(self) -> np.ndarray:
+        """Reached the end speed (the front-ends add their step limit)."""
+        return self.flags[:, F_TRUNCATED].astype(bool)
+
+    @property
+    def done(self) -> np.ndarray:
+        return self.terminated | self.truncated
+
+    @property
+    def hunting(self) -> np.ndarray:
+        return self.flags[:, F_HUNTING].astype(bool)
+
+    @property
+    def blowup(self) -> np.ndarray:
+        return self.flags[:, F_BLOWUP].astype(bool)
+
+    @property
+    def onset_speed_kmh(self) -> np.ndarray:
+        """Speed where hunting was detected, km/h (NaN until then)."""
+        return self.info[:, I_ONSET_KMH]
+
+    @property
+    def lateral_rms_m(self) -> np.ndarray:
+        """(N, 2) the detector's rms of each wheelset's displacement relative to the rail."""
+        return self.info[:, I_RMS1 : I_RMS2 + 1]
+
+    @property
+    def relative_lateral_m(self) -> np.ndarray:
+        """(N, 2) each wheelset's lateral displacement relative to the rail now."""
+        return self.sim.x[:, [Y1, Y2]] - self.sim.track_sample
+
+    @property
+    def actuator_force(self) -> np.ndarray:
+        """(N, N_CHANNELS) channel forces at the end of the step (N or N m), all channels."""
+        return self.info[:, I_FORCE : I_FORCE + N_CHANNELS]
+
+    @property
+    def actuator_power(self) -> np.ndarray:
+        """(N, N_CHANNELS) mean mechanical power per channel over the step (W; < 0 dissipated)."""
+        return self.info[:, I_POWER : I_POWER + N_CHANNELS]
+
+    @property
+    def actuator_limits(self) -> np.ndarray:
+        """(N_CHANNELS,) each channel's max_force as configured."""
+        return np.array([self.config["actuators"][name]["max_force"] for name in CHANNEL_NAMES])
+
+    @property
+    def flange_clearance(self) -> np.ndarray:
+        """(N,) each row's flange clearance delta, m."""
+        return self.sim.coefficients[:, P_DELTA]
+
+    def delta(self, row: int = 0) -> float:
+        return float(self.sim.coefficients[row, P_DELTA])
+
+    def episode_end(self, row: int) -> tuple[bool, bool]:
+        """(terminated, truncated at the end speed) of one row after its last step."""
+        flags = self.flags[row]
+        return bool(flags[F_TERMINATED]), bool(flags[F_TRUNCATED])
+
+    def info_dict(self, row: int) -> dict[str, Any]:
+        """The step info of one environment (see ``BogieHuntingEnv``)."""
+        info = self.info[row]
+        onset = float(info[I_ONSET_KMH])
+        flags = self.flags[row]
+        return {
+            "speed_kmh": float(info[I_SPEED_KMH]),
+            "hunting": bool(flags[F_HUNTING]),
+            "onset_speed_kmh": None if onset != onset else onset,
+            "lateral_rms_m": info[I_RMS1 : I_RMS2 + 1].copy(),
+            "actuator_force": info[I_FORCE : I_FORCE + N_CHANNELS].copy(),
+            "actuator_power": info[I_POWER : I_POWER + N_CHANNELS].copy(),
+            "blowup": bool(flags[F_BLOWUP]),
+        }
+
+    def batched_infos(self) -> dict[str, np.ndarray]:
+        """Gymnasium vector infos: arrays plus boolean ``_key`` masks (all True)."""
+        values = {
+            "speed_kmh": self.info[:, I_SPEED_KMH].copy(),
+            "hunting": self.hunting,
+            "onset_speed_kmh": self.onset_speed_kmh.copy(),
+            "lateral_rms_m": self.lateral_rms_m.copy(),
+            "actuator_force": self.actuator_force.copy(),
+            "actuator_power": self.actuator_power.copy(),
+            "blowup": self.blowup,
+        }
+        mask = np.ones(self.num_envs, dtype=bool)
+        out: dict[str, np.ndarray] = {}
+        for key, value in values.items():
+            out[key] = value
+            out[f"_{key}"] = mask.copy()
+        return out
+
+    def max_episode_steps(self) -> int:
+        return max_steps_for(self.config)
+
+
+def max_steps_for(config: Mapping[str, Any] | None) -> int:
+    """Steps to ramp from the lowest start to the highest end at the slowest rate, +10 %
+    (100,000 when a fixed-speed run has no natural end)."""
+    c = make_config(config)
+    sp = c["speed"]
+    accel = min([sp["accel"]] + ([sp["accel_range"][0]] if sp["accel_range"] else []))
+    lo = min([sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else []))
+    hi = max([sp["end_kmh"]] + ([sp["end_kmh_range"][1]] if sp["end_kmh_range"] else []))
+    if accel <= 0:
+        return 100_000
+    return int(math.ceil((hi - lo) / KMH / accel / c["dt"] * 1.1)) + 10
+
+
+HuntingTask.max_steps_for = staticmethod(max_steps_for)
