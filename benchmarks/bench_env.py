@@ -3,7 +3,8 @@
     python benchmarks/bench_env.py            # table
     python benchmarks/bench_env.py --json     # one JSON object
 
-Each env step of bogie-env covers 10 ms of simulated time (3 RK4 substeps over 300-600 km/h).
+Each env step of bogie-env covers 10 ms of simulated time (2 RK4 substeps over 300-600 km/h).
+``--contention`` adds the thread figures on a busy host (two CPU-burning processes beside it).
 Single envs are timed both raw (``env.unwrapped``) and as ``gym.make`` returns them (with
 Gymnasium's wrappers). Vector figures include observations, rewards and infos. Ratios within
 one run are the trustworthy numbers on a shared machine.
@@ -14,6 +15,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
+import sys
 import time
 
 import gymnasium as gym
@@ -22,8 +25,14 @@ import numpy as np
 from bogie_agents.vec_env import BogieHuntingSB3VecEnv
 import bogie_env  # noqa: F401
 from bogie_env.envs.vector import BogieHuntingVectorEnv
+from bogie_env.simulator import PARALLEL_MIN_ROWS, default_num_threads
 
 REPEATS = 3
+
+
+def _burn(n: int) -> list[subprocess.Popen]:
+    """n processes that keep a core busy each (a shared host), until terminated."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
 
 
 def rate_single(env, n_steps: int) -> float:
@@ -71,6 +80,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--sizes", default="1,64,1024,4096")
+    parser.add_argument("--contention", action="store_true", help="also time the vector env beside CPU-burning processes")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
 
@@ -90,11 +100,27 @@ def main() -> None:
     results["sb3_vec_env_steps_per_s"] = {}
     for n in (64, 4096):
         results["sb3_vec_env_steps_per_s"][str(n)] = rate_sb3(BogieHuntingSB3VecEnv(n, seed=0), max(20, 40000 // n))
+    # Threads: the vector env on the calling thread (num_threads=1) against the default, on an
+    # idle host and with two CPU-burning processes beside it (a busy host).
+    results["threads"] = {}
+    for busy in (False, True) if args.contention else (False,):
+        burners = _burn(os.cpu_count() or 1) if busy else []
+        try:
+            for n in (64, 4096):
+                for threads in (1, None):
+                    venv = BogieHuntingVectorEnv(n, num_threads=threads)
+                    key = f"{'busy' if busy else 'idle'}_N{n}_{'serial' if threads == 1 else 'default'}"
+                    results["threads"][key] = rate_vector(venv, max(10, 20000 // n))
+        finally:
+            for proc in burners:
+                proc.terminate()
+    results["default_num_threads"] = default_num_threads()
+    results["parallel_min_rows"] = PARALLEL_MIN_ROWS
     results["simulated_seconds_per_step"] = bogie.unwrapped.config["dt"]
     results["rk4_substeps_per_step"] = bogie.unwrapped.task.n_sub
     results["cpus"] = os.cpu_count()
     results["targets"] = {
-        "single >= 50000 steps/s": results["single_steps_per_s"] >= 50000,
+        "single >= Pendulum-v1": results["single_vs_pendulum"] >= 1.0,
         "vector N=4096 >= 2000000 env-steps/s": results["vector_steps_per_s"].get("4096", 0) >= 2e6,
     }
     if args.json:

@@ -84,7 +84,7 @@ def interval_accel(motion, dt):
     """This interval's ramp rate: the nominal one, cut so the speed stops at the end speed."""
     a = motion[M_ACCEL]
     room = (motion[M_END_SPEED] - motion[M_SPEED]) / dt
-    if a > room:
+    if a > 0.0 and a > room:
         a = max(room, 0.0)
     elif a < 0.0 and a < room:
         a = min(room, 0.0)

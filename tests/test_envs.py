@@ -319,3 +319,32 @@ def test_config_defaults_are_documented_values():
     assert c["actuators"]["frame_lateral"]["max_force"] == 10e3
     assert c["actuators"]["wheelset1_yaw"]["max_force"] == 15e3 and c["actuators"]["frame_yaw"]["bandwidth_hz"] == 10.0
     assert c["track"]["rms"] == 5e-4 and math.isclose(c["hunting"]["rms_fraction"], 0.6)
+
+
+def test_sensors_read_what_they_name():
+    """Each sensor against its definition from the states (and the right-hand side for the
+    frame acceleration); the template for a new sensor's test (docs/extending.md)."""
+    from bogie_env.actuators import force_matrix
+    from bogie_env.dynamics import state_index as si
+    from bogie_env.envs import task as T
+
+    env = BogieHuntingEnv()
+    env.reset(seed=5)
+    for _ in range(30):
+        obs, *_ = env.step(np.array([0.5, -0.3, 0.2, 0.1], dtype=np.float32))
+    task = env.task
+    x, v = task.states[0], task.speed_kmh[0] / 3.6
+    p = task.model.params
+    accel = task.model.rhs(x, v, inputs=force_matrix() @ task.actuator_force[0], track=task.sim.track_sample[0])
+    expected = {
+        T.SENSOR_FRAME_LATERAL_ACCEL: accel[si("dyb")] / T.ACCEL_SCALE,
+        T.SENSOR_FRAME_YAW_RATE: x[si("dpsib")] / T.YAW_RATE_SCALE,
+        T.SENSOR_WHEELSET1_LATERAL: (x[si("y1")] - x[si("yb")] - p.L1 * x[si("psib")]) / p.delta,
+        T.SENSOR_WHEELSET2_LATERAL: (x[si("y2")] - x[si("yb")] + p.L1 * x[si("psib")]) / p.delta,
+        T.SENSOR_WHEELSET1_YAW: (x[si("psi1")] - x[si("psib")]) / T.REL_YAW_SCALE,
+        T.SENSOR_WHEELSET2_YAW: (x[si("psi2")] - x[si("psib")]) / T.REL_YAW_SCALE,
+        T.speed_index("sensors"): (task.speed_kmh[0] - T.SPEED_CENTRE_KMH) / T.SPEED_SCALE_KMH,
+    }
+    for index, value in expected.items():
+        assert obs[index] == pytest.approx(np.clip(value, -10, 10), rel=1e-5, abs=1e-6), T.SENSORS[index] if index < 6 else "speed"
+    assert np.allclose(obs[7:], task.actuator_force[0] / task.actuator_limits, rtol=1e-5)

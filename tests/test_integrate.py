@@ -124,3 +124,53 @@ def test_nonfinite_state_is_flagged(paper_model):
     x0[3] = np.nan
     status = run_fixed(paper_model, x0, 100.0, 0.01, 0.01, 2)[5]
     assert status[0] == STATUS_NONFINITE
+
+
+@pytest.mark.parametrize("accel, end", [(2.0, 101.0), (-2.0, 99.0)])
+def test_speed_ramps_stop_exactly_at_the_end_speed(paper_model, accel, end):
+    """Up or down, the speed follows V0 + a t until it reaches the end speed, then holds."""
+    sim = BatchSimulator(paper_model, 1, 0.01, (98.0, 102.0), n_sub=2)
+    sim.set_rows(0, paper_model.equilibrium(100.0), 100.0, accel, end_speed=end)
+    speeds = []
+    for _ in range(100):
+        sim.step()
+        speeds.append(sim.speed[0])
+    assert speeds[10] == pytest.approx(100.0 + accel * 0.11, rel=1e-12)
+    assert speeds[-1] == pytest.approx(end, abs=1e-12) and speeds[-1] == speeds[-40]
+
+
+def test_one_interval_equals_a_python_rk4_with_track_and_actuators(paper_model):
+    """An independent formulation of one interval: RK4 in numpy over model.rhs, with the speed
+    ramp, the track under each wheelset at s(t) +- L1 and a lagged force channel mapped by the
+    actuator matrices. Checks the driver's bookkeeping (distance, track input, channels)."""
+    from bogie_env.actuators import force_matrix
+    from bogie_env.track import TrackInput, alignment_profile
+
+    track = TrackInput(alignment_profile(2e-3, 3.0, 80.0, seed=4))
+    tau, dt, n_sub, v0, accel, s0 = 0.02, 0.01, 2, 95.0, 1.5, 1234.5
+    target = np.array([3e3, -2e3, 1e3, 4e3])
+    sim = BatchSimulator(paper_model, 1, dt, (90.0, 100.0), track=track, lag_tau=tau, n_sub=n_sub)
+    x0 = perturbed(paper_model, v0)
+    sim.set_rows(0, x0, v0, accel, distance=s0)
+    sim.step(target[None, :])
+    L1 = paper_model.params.L1
+
+    def f(t, x):
+        s = s0 + v0 * t + 0.5 * accel * t * t
+        u = target * (1 - math.exp(-t / tau))
+        yt = np.array([track.alignment.at(s + L1), track.alignment.at(s - L1)])
+        return paper_model.rhs(x, v0 + accel * t, inputs=force_matrix() @ u, track=yt)
+
+    x, h = x0.copy(), dt / n_sub
+    for j in range(n_sub):
+        t = j * h
+        k1 = f(t, x)
+        k2 = f(t + h / 2, x + h / 2 * k1)
+        k3 = f(t + h / 2, x + h / 2 * k2)
+        k4 = f(t + h, x + h * k3)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    scale = np.abs(x - x0) + 1e-12
+    assert np.max(np.abs(sim.x[0] - x) / scale) < 1e-6
+    assert sim.distance[0] == pytest.approx(s0 + v0 * dt + 0.5 * accel * dt * dt, rel=1e-14)
+    assert np.allclose(sim.track_sample[0], track.under_wheelsets(sim.distance[0], L1), rtol=0, atol=1e-15)
+    assert np.allclose(sim.channel_output[0], target * (1 - math.exp(-dt / tau)), rtol=1e-12)

@@ -220,3 +220,16 @@ def make_config(
     merged = _merge(merged, user, "")
     merged = _merge(merged, overrides, "")
     return validate(merged)
+
+
+def max_steps_for(config: Mapping[str, Any] | None) -> int:
+    """Steps to ramp from the lowest start to the highest end at the slowest rate, +10 %
+    (100,000 when a fixed-speed run has no natural end)."""
+    c = make_config(config)
+    sp = c["speed"]
+    accel = min([sp["accel"]] + ([sp["accel_range"][0]] if sp["accel_range"] else []))
+    lo = min([sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else []))
+    hi = max([sp["end_kmh"]] + ([sp["end_kmh_range"][1]] if sp["end_kmh_range"] else []))
+    if accel <= 0:
+        return 100_000
+    return int(math.ceil((hi - lo) / 3.6 / accel / c["dt"] * 1.1)) + 10

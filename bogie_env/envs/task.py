@@ -54,7 +54,7 @@ from ..simulator import (
     use_threads,
 )
 from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, TrackInput, alignment_profile, perfect_track
-from .config import bogie_params, make_config
+from .config import bogie_params, make_config, max_steps_for
 
 KMH = 3.6
 
@@ -569,19 +569,3 @@ class HuntingTask:
 
     def max_episode_steps(self) -> int:
         return max_steps_for(self.config)
-
-
-def max_steps_for(config: Mapping[str, Any] | None) -> int:
-    """Steps to ramp from the lowest start to the highest end at the slowest rate, +10 %
-    (100,000 when a fixed-speed run has no natural end)."""
-    c = make_config(config)
-    sp = c["speed"]
-    accel = min([sp["accel"]] + ([sp["accel_range"][0]] if sp["accel_range"] else []))
-    lo = min([sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else []))
-    hi = max([sp["end_kmh"]] + ([sp["end_kmh_range"][1]] if sp["end_kmh_range"] else []))
-    if accel <= 0:
-        return 100_000
-    return int(math.ceil((hi - lo) / KMH / accel / c["dt"] * 1.1)) + 10
-
-
-HuntingTask.max_steps_for = staticmethod(max_steps_for)
