@@ -38,7 +38,7 @@ reproduce: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_dynamics.py
 
-## drop compiled numba kernels (after editing a module that other kernels inline)
+## drop compiled numba kernels (import bogie_env does this itself when their source changed)
 clean-cache:
 	find bogie_env -name '*.nbi' -delete -o -name '*.nbc' -delete
 

@@ -2,15 +2,24 @@
 
 Importing the package is light (no Gymnasium, numba or SciPy): the model classes load on first
 use, and the environment ids register with Gymnasium when it is imported
-(:mod:`bogie_env.envs.registration`).
+(:mod:`bogie_env.envs.registration`). It also drops compiled kernels whose source changed
+(:mod:`bogie_env._numba_cache`).
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
-from .envs.registration import register_envs_with_gymnasium
-from .params import BogieParams, ConfigError, load_params
+from ._numba_cache import ensure_fresh_cache
+
+try:  # numba's cached kernels must not outlive an edit of any source they compile in
+    ensure_fresh_cache(Path(__file__).parent)
+except (OSError, ImportError):  # a read-only or unusual install: numba's own per-file check still applies
+    pass
+
+from .envs.registration import register_envs_with_gymnasium  # noqa: E402
+from .params import BogieParams, ConfigError, load_params  # noqa: E402
 
 register_envs_with_gymnasium()
 
