@@ -1,9 +1,11 @@
-"""The library's command line. Each subcommand is a thin client of the library.
+"""The bogie command line: critical speeds, analyses and, with bogie_agents, controllers.
+
+Each subcommand is a thin client of the library.
 
     bogie critical-speed [--config FILE] [--set NAME=VALUE ...] [--json]
 
 The ``bogie`` console script is :mod:`bogie_agents.cli`, which adds the agents' commands
-(train, evaluate, results) to this parser; ``python -m bogie_env.cli`` has the library's alone.
+(train, tune, evaluate, results) to this parser; ``python -m bogie_env.cli`` has the library's alone.
 """
 
 from __future__ import annotations

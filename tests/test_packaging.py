@@ -146,3 +146,21 @@ def test_every_shipped_config_and_the_pretrained_policy_are_package_data():
         folder = init.parent.relative_to(root)
         name = ".".join(("bogie_agents",) + folder.parts[1:]) if folder.parts[0] == "agents" else ".".join(folder.parts)
         assert name in packaged, f"{name} ({folder}) is not in pyproject's packages"
+
+
+def test_the_readme_lists_every_command_with_exactly_its_options():
+    import argparse
+    import re
+    from pathlib import Path
+
+    import bogie_agents.cli  # noqa: F401  (adds the agents' commands)
+    from bogie_env import cli as library_cli
+
+    parser = library_cli.build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    rows = dict(re.findall(r"^\| `([a-z-]+)` \| (.*) \|$", readme, re.MULTILINE))
+    assert set(rows) == set(commands), sorted(set(rows) ^ set(commands))
+    for name, sub in commands.items():
+        options = {s for action in sub._actions for s in action.option_strings if s.startswith("--") and s != "--help"}
+        assert set(re.findall(r"`(--[a-z-]+)`", rows[name])) == options, name
