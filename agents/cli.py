@@ -73,8 +73,12 @@ def cmd_tune(args: argparse.Namespace) -> int:
 @argument("--parts", default="critical,ramp,effort,robustness", help="which parts of the protocol to run")
 @argument("--seed", type=int, default=0)
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
+@argument("--trust-policy", action="store_true",
+          help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your rights; "
+               "use only for files you made or trust (pretrained is checked against its SHA-256 sums instead)")
 @argument("--policy", action="append", required=True,
-          help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip); repeatable")
+          help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip, needs --trust-policy); "
+               "repeatable")
 @bogie_options
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluate import ProtocolSettings, evaluate_policy
@@ -88,7 +92,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     settings = ProtocolSettings(seed=args.seed)
     results = []
     for spec in args.policy:
-        result = evaluate_policy(load_policy(spec, env_config), env_config, settings, parts)
+        result = evaluate_policy(load_policy(spec, env_config, args.trust_policy), env_config, settings, parts)
         result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
         results.append(result)
     payload = {"policies": results}
@@ -116,12 +120,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 @argument("--seed", type=int, default=0)
 @argument("--env-config", default=None)
 @argument("--out", required=True, help="output folder, e.g. docs/results")
+@argument("--trust-policy", action="store_true", help="allow loading policy PATHs (an SB3 model file is code)")
 @argument("--policy", action="append", required=True, help="as for evaluate; repeatable")
 @bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
     from .results import run
 
-    payload = run(args.policy, env_config_from_args(args), Path(args.out), args.resume, args.seed)
+    payload = run(args.policy, env_config_from_args(args), Path(args.out), args.resume, args.seed,
+                  trusted=args.trust_policy)
     print((Path(args.out) / "table.md").read_text())
     return 0 if payload else 1
 

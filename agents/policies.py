@@ -1,22 +1,32 @@
 """Policies by name or path: the classical controllers and trained SB3 agents, one interface.
 
-``load_policy(spec, env_config)`` returns an object with ``observation_type``, ``reset(n, rows)``
-and ``act(obs) -> actions``:
+``load_policy(spec, env_config, trusted=False)`` returns an object with ``observation_type``,
+``reset(n, rows)`` and ``act(obs) -> actions``:
 
 - ``passive``, ``skyhook``, ``lqr``, ``lqg``: :mod:`bogie_agents.controllers`;
-- ``pretrained``: the policy shipped in ``agents/pretrained/`` (see docs/results.md);
+- ``pretrained``: the policy shipped in ``agents/pretrained/`` (see docs/results.md), checked
+  against the SHA-256 sums in its ``SHA256SUMS`` before anything in it is loaded;
 - a path to a training run folder (``runs/NAME``) or to an SB3 ``.zip``: the saved model and,
-  if present beside it, its ``vecnormalize.pkl`` observation statistics.
+  if present beside it, its ``vecnormalize.json`` observation statistics.
+
+**A policy file is code.** An SB3 ``.zip`` holds pickled Python objects, and loading it runs
+whatever they say; so does a ``vecnormalize.pkl``. Load such files only from sources you trust:
+a path is loaded only with ``trusted=True`` (``bogie evaluate --trust-policy``). The observation
+statistics are read from ``vecnormalize.json`` (plain numbers, no code); a legacy
+``vecnormalize.pkl`` is read only when trusted, and :func:`convert_vecnormalize` turns it
+into the JSON form.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
-import pickle
+import math
 from pathlib import Path
 
 import numpy as np
 
+from bogie_env.fileio import write_text_atomic
 from bogie_env.params import ConfigError
 
 from .controllers import LQGController, LQRController, PassiveController, SkyhookController
@@ -24,6 +34,12 @@ from .controllers import LQGController, LQRController, PassiveController, Skyhoo
 CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": LQRController, "lqg": LQGController}
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 ALGORITHMS = ("ppo", "sac", "td3")
+NORMALISATION_FILE = "vecnormalize.json"
+LEGACY_NORMALISATION_FILE = "vecnormalize.pkl"
+MANIFEST_FILE = "SHA256SUMS"
+NORMALISATION_FORMAT = "bogie-vecnormalize-1"
+TRUST_HINT = ("an SB3 model file is code (loading it unpickles Python objects, which can run anything); "
+              "load it only if you trust its source, with --trust-policy (load_policy(..., trusted=True))")  # fmt: skip
 
 
 class SB3Policy:
@@ -50,12 +66,133 @@ class SB3Policy:
         return np.clip(scaled, -self.clip_obs, self.clip_obs).astype(np.float32)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        actions, _ = self.model.predict(self.normalise(np.asarray(obs, dtype=np.float32)), deterministic=True)
+        obs = np.asarray(obs, dtype=np.float32)
+        expected = self.model.observation_space.shape
+        if obs.shape[-len(expected):] != expected:
+            raise ConfigError(f"policy {self.name!r} takes observations of shape {expected}; got {obs.shape[1:]}")
+        actions, _ = self.model.predict(self.normalise(obs), deterministic=True)
         return np.asarray(actions, dtype=np.float32)
 
 
+def sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def write_manifest(folder: str | Path, names: list[str]) -> Path:
+    """Write ``folder/SHA256SUMS`` (``sha256sum`` format) for the given files."""
+    folder = Path(folder)
+    lines = [f"{sha256_file(folder / name)}  {name}\n" for name in sorted(names)]
+    write_text_atomic(folder / MANIFEST_FILE, "".join(lines))
+    return folder / MANIFEST_FILE
+
+
+def verify_manifest(folder: str | Path) -> list[str]:
+    """Check every file listed in ``folder/SHA256SUMS``; returns the names checked.
+
+    The model ``.zip`` and the statistics must be listed, and no other ``.zip``/``.pkl`` may
+    sit in the folder unlisted (it could be picked up instead)."""
+    folder = Path(folder)
+    manifest = folder / MANIFEST_FILE
+    if not manifest.is_file():
+        raise ConfigError(f"{str(manifest)!r} is missing: the pretrained policy cannot be verified; reinstall it")
+    listed: dict[str, str] = {}
+    for number, line in enumerate(manifest.read_text().splitlines(), start=1):
+        parts = line.split()
+        if len(parts) != 2 or len(parts[0]) != 64:
+            raise ConfigError(f"{str(manifest)!r} line {number} is not '<sha256>  <file>': {line!r}")
+        listed[parts[1].lstrip("*")] = parts[0].lower()
+    for name, expected in listed.items():
+        path = folder / name
+        if "/" in name or not path.is_file():
+            raise ConfigError(f"{str(manifest)!r} lists {name!r}, which is not a file in {str(folder)!r}")
+        if sha256_file(path) != expected:
+            raise ConfigError(f"{str(path)!r} does not match its SHA-256 in {MANIFEST_FILE}: the file was changed "
+                              "or damaged; refusing to load it (a policy file is code). Reinstall the package.")  # fmt: skip
+    unlisted = [p.name for p in folder.iterdir() if p.suffix in (".zip", ".pkl", ".json") and p.name not in listed]
+    if unlisted:
+        raise ConfigError(f"{str(folder)!r} holds files not in {MANIFEST_FILE}: {', '.join(sorted(unlisted))}; "
+                          "refusing to load an unverified policy")  # fmt: skip
+    if not any(name.endswith(".zip") for name in listed):
+        raise ConfigError(f"{str(manifest)!r} lists no model .zip")
+    return sorted(listed)
+
+
+def save_normalisation(vec_normalize, path: str | Path) -> None:
+    """Write a VecNormalize's observation statistics as plain JSON (exact float64 round trip)."""
+    rms = vec_normalize.obs_rms
+    payload = {
+        "format": NORMALISATION_FORMAT,
+        "obs_mean": [float(v) for v in np.asarray(rms.mean, dtype=float).ravel()],
+        "obs_var": [float(v) for v in np.asarray(rms.var, dtype=float).ravel()],
+        "count": float(rms.count),
+        "clip_obs": float(vec_normalize.clip_obs),
+        "epsilon": float(vec_normalize.epsilon),
+        "norm_obs": bool(vec_normalize.norm_obs),
+    }
+    write_text_atomic(Path(path), json.dumps(payload, indent=1))
+
+
+def load_normalisation(path: str | Path) -> dict:
+    """Read and check a ``vecnormalize.json``: arrays of equal length, finite, variances >= 0."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ConfigError(f"observation statistics {str(path)!r} are not readable JSON: {error}") from None
+    if not isinstance(data, dict) or data.get("format") != NORMALISATION_FORMAT:
+        raise ConfigError(f"{str(path)!r} is not a {NORMALISATION_FORMAT!r} file (its 'format' key)")
+    try:
+        mean = np.array(data["obs_mean"], dtype=float)
+        var = np.array(data["obs_var"], dtype=float)
+        clip_obs, epsilon = float(data["clip_obs"]), float(data["epsilon"])
+        norm_obs = bool(data.get("norm_obs", True))
+        count = float(data.get("count", math.nan))
+    except (KeyError, TypeError, ValueError) as error:
+        raise ConfigError(f"{str(path)!r}: missing or non-numeric entry ({error}); needs obs_mean, obs_var, "
+                          "clip_obs, epsilon") from None  # fmt: skip
+    if mean.ndim != 1 or mean.shape != var.shape or not mean.size:
+        raise ConfigError(f"{str(path)!r}: obs_mean and obs_var must be lists of the same length")
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(var)) and np.all(var >= 0)):
+        raise ConfigError(f"{str(path)!r}: obs_mean must be finite and obs_var finite and >= 0")
+    if not (clip_obs > 0 and epsilon > 0 and math.isfinite(clip_obs) and math.isfinite(epsilon)):
+        raise ConfigError(f"{str(path)!r}: clip_obs and epsilon must be finite and > 0")
+    return {"mean": mean if norm_obs else None, "var": var if norm_obs else None, "clip_obs": clip_obs,
+            "epsilon": epsilon, "count": count}  # fmt: skip
+
+
+def _load_legacy_pickle(path: Path) -> dict:
+    """A VecNormalize pickle (code: only called when trusted)."""
+    import pickle
+
+    try:
+        with path.open("rb") as handle:
+            stats = pickle.load(handle)  # noqa: S301 - trusted by the caller's explicit flag
+        rms = stats.obs_rms
+        return {"mean": np.asarray(rms.mean, dtype=float) if stats.norm_obs else None,
+                "var": np.asarray(rms.var, dtype=float) if stats.norm_obs else None,
+                "clip_obs": float(stats.clip_obs), "epsilon": float(stats.epsilon), "count": float(rms.count)}  # fmt: skip
+    except Exception as error:  # noqa: BLE001 - a corrupt or foreign pickle
+        raise ConfigError(f"{str(path)!r} is not a readable VecNormalize pickle: {type(error).__name__}: {error}") from None
+
+
+def convert_vecnormalize(pickle_path: str | Path, json_path: str | Path | None = None) -> Path:
+    """Turn a trusted ``vecnormalize.pkl`` into a data-only ``vecnormalize.json`` (same numbers)."""
+    import pickle
+
+    pickle_path = Path(pickle_path)
+    json_path = Path(json_path) if json_path else pickle_path.with_name(NORMALISATION_FILE)
+    with pickle_path.open("rb") as handle:
+        stats = pickle.load(handle)  # noqa: S301 - the caller vouches for the file
+    save_normalisation(stats, json_path)
+    return json_path
+
+
 def _find_model(path: Path) -> tuple[Path, Path | None, Path | None]:
-    """(model .zip, vecnormalize.pkl or None, run config.json or None) from a folder or a zip."""
+    """(model .zip, statistics file or None, run config.json or None) from a folder or a zip."""
     if path.is_dir():
         candidates = [path / "best_model.zip", path / "final_model.zip", path / "model.zip"]
         candidates += sorted(path.glob("*.zip"))
@@ -73,50 +210,89 @@ def _find_model(path: Path) -> tuple[Path, Path | None, Path | None]:
             f"policy {str(path)!r} is neither a known name ({', '.join(list(CLASSICAL) + ['pretrained'])}), "
             "a training run folder, nor an SB3 .zip file"
         )
-    norm = folder / "vecnormalize.pkl"
+    norm = folder / NORMALISATION_FILE
+    if not norm.is_file():
+        norm = folder / LEGACY_NORMALISATION_FILE
     config = folder / "config.json"
     return zip_path, norm if norm.is_file() else None, config if config.is_file() else None
 
 
-def load_sb3_policy(path: str | Path) -> SB3Policy:
+def load_sb3_policy(path: str | Path, trusted: bool = False) -> SB3Policy:
+    """Load a trained model and its observation statistics. ``trusted`` must be True (see the module doc)."""
+    if not trusted:
+        raise ConfigError(f"refusing to load {str(path)!r}: {TRUST_HINT}")
     from stable_baselines3 import PPO, SAC, TD3
 
     zip_path, norm_path, config_path = _find_model(Path(path))
-    run_config = json.loads(config_path.read_text()) if config_path else {}
+    try:
+        run_config = json.loads(config_path.read_text()) if config_path else {}
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ConfigError(f"run config {str(config_path)!r} is not readable JSON: {error}") from None
+    if not isinstance(run_config, dict):
+        raise ConfigError(f"run config {str(config_path)!r} must hold a JSON object")
     algo = str(run_config.get("algo", "")).lower()
     classes = {"ppo": PPO, "sac": SAC, "td3": TD3}
     order = [classes[algo]] if algo in classes else [PPO, SAC, TD3]
-    model = None
+    model, errors = None, []
     for cls in order:
         try:
             model = cls.load(str(zip_path), device="cpu")
             break
-        except Exception:  # noqa: BLE001 - try the next algorithm class
-            continue
+        except Exception as error:  # noqa: BLE001 - try the next algorithm class
+            errors.append(f"{cls.__name__}: {type(error).__name__}: {str(error)[:200]}")
     if model is None:
-        raise ConfigError(f"could not load {str(zip_path)!r} as a PPO, SAC or TD3 model")
-    mean = var = None
-    clip_obs, epsilon = 10.0, 1e-8
+        raise ConfigError(f"could not load {str(zip_path)!r} as a PPO, SAC or TD3 model ({'; '.join(errors)})")
+    stats = {"mean": None, "var": None, "clip_obs": 10.0, "epsilon": 1e-8}
     if norm_path is not None:
-        with norm_path.open("rb") as handle:
-            stats = pickle.load(handle)
-        mean, var = stats.obs_rms.mean, stats.obs_rms.var
-        clip_obs, epsilon = stats.clip_obs, stats.epsilon
-    return SB3Policy(model, mean, var, clip_obs, epsilon, name=str(path), env_config=run_config.get("env", {}))
+        stats = load_normalisation(norm_path) if norm_path.suffix == ".json" else _load_legacy_pickle(norm_path)
+        if stats["mean"] is not None and stats["mean"].shape != model.observation_space.shape:
+            raise ConfigError(f"{str(norm_path)!r} has statistics for {stats['mean'].size} observations but the model "
+                              f"{str(zip_path)!r} takes {model.observation_space.shape}")  # fmt: skip
+    env_config = run_config.get("env", {}) if isinstance(run_config.get("env", {}), dict) else {}
+    return SB3Policy(model, stats["mean"], stats["var"], stats["clip_obs"], stats["epsilon"], name=str(path),
+                     env_config=env_config)  # fmt: skip
 
 
-def load_policy(spec: str, env_config: dict):
-    """A policy by name (passive, skyhook, lqr, lqg, pretrained) or path."""
+def check_shapes(policy, env_config: dict) -> None:
+    """An SB3 policy's observation and action shapes must match the env it will drive."""
+    model = getattr(policy, "model", None)
+    if model is None:
+        return
+    from bogie_env.envs.config import merge_config
+    from bogie_env.envs.task import HuntingTask
+
+    task = HuntingTask(1, merge_config(env_config, {"observation": {"type": policy.observation_type}}))
+    for what, model_space, env_space in (("observation", model.observation_space, task.observation_space),
+                                         ("action", model.action_space, task.action_space)):  # fmt: skip
+        if model_space.shape != env_space.shape:
+            raise ConfigError(
+                f"policy {policy.name!r} expects {what}s of shape {model_space.shape} but the env config gives "
+                f"{env_space.shape}; evaluate it with the env config it was trained on (its run's config.json: "
+                "actuator modes and observation settings)"
+            )
+
+
+def load_policy(spec: str, env_config: dict, trusted: bool = False):
+    """A policy by name (passive, skyhook, lqr, lqg, pretrained) or path.
+
+    ``pretrained`` is verified against its SHA-256 manifest; a path is loaded only when
+    ``trusted`` is True, since an SB3 model file is code."""
     if spec in CLASSICAL:
         return CLASSICAL[spec](env_config)
     if spec == "pretrained":
         if not PRETRAINED_DIR.is_dir() or not list(PRETRAINED_DIR.glob("*.zip")):
             raise ConfigError(f"no pretrained policy in {PRETRAINED_DIR}; train one (docs/results.md)")
-        return load_sb3_policy(PRETRAINED_DIR)
-    path = Path(spec)
-    if not path.exists():
-        raise ConfigError(
-            f"policy {spec!r} not found: give one of {', '.join(list(CLASSICAL) + ['pretrained'])} "
-            "or the path of a training run folder or SB3 .zip"
-        )
-    return load_sb3_policy(path)
+        verify_manifest(PRETRAINED_DIR)
+        policy = load_sb3_policy(PRETRAINED_DIR, trusted=True)
+    else:
+        path = Path(spec)
+        if not path.exists():
+            raise ConfigError(
+                f"policy {spec!r} not found: give one of {', '.join(list(CLASSICAL) + ['pretrained'])} "
+                "or the path of a training run folder or SB3 .zip"
+            )
+        if not trusted:
+            raise ConfigError(f"policy {spec!r} is a path: {TRUST_HINT}")
+        policy = load_sb3_policy(path, trusted=True)
+    check_shapes(policy, env_config)
+    return policy

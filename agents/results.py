@@ -21,6 +21,7 @@ from bogie_env.analysis.plots import EN14363_KMH, plt, save
 from bogie_env.analysis.report import write_text_atomic
 from bogie_env.envs.config import MAX_SPEED_KMH, merge_config
 from bogie_env.envs.task import HuntingTask
+from bogie_env.params import ConfigError
 
 from .evaluate import PARTS, ProtocolSettings, _policy_config, evaluate_policy
 from .policies import PRETRAINED_DIR, load_policy
@@ -147,12 +148,18 @@ def table(results: list[dict], passive_kmh: float | None) -> str:
 
 
 def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
-        settings: ProtocolSettings | None = None, parts: tuple[str, ...] = PARTS) -> dict:  # fmt: skip
+        settings: ProtocolSettings | None = None, parts: tuple[str, ...] = PARTS, trusted: bool = False) -> dict:  # fmt: skip
+    """Evaluate ``policies`` into ``out``; ``trusted`` allows policy paths (an SB3 model file is code)."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {str(out)!r} is an existing file; give a folder")
     out.mkdir(parents=True, exist_ok=True)
     json_path = out / "results.json"
     done: dict[str, dict] = {}
     if resume and json_path.is_file():
-        done = {r["policy"]: r for r in json.loads(json_path.read_text()).get("policies", [])}
+        try:
+            done = {r["policy"]: r for r in json.loads(json_path.read_text()).get("policies", [])}
+        except (json.JSONDecodeError, AttributeError, KeyError, TypeError) as error:
+            raise ConfigError(f"--resume: {str(json_path)!r} is not a results file ({error}); move it away") from None
     settings = settings or ProtocolSettings(seed=seed)
     passive_trace = ramp_trace(load_policy("passive", env_config), env_config, seed)
     results = []
@@ -160,7 +167,7 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
         if spec in done:
             results.append(done[spec])
             continue
-        policy = load_policy(spec, env_config)
+        policy = load_policy(spec, env_config, trusted)
         result = evaluate_policy(policy, env_config, settings, parts)
         result["policy"] = spec
         folder = PRETRAINED_DIR if spec == "pretrained" else Path(spec)
@@ -169,11 +176,11 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
             result["training"] = json.loads(progress.read_text())
         results.append(result)
         if spec != "passive":
-            ramp_figure(spec, passive_trace, ramp_trace(load_policy(spec, env_config), env_config, seed),
+            ramp_figure(spec, passive_trace, ramp_trace(load_policy(spec, env_config, trusted), env_config, seed),
                         out / f"ramp_{slug(spec)}.png")  # fmt: skip
         write_text_atomic(json_path, json.dumps({"policies": results}, indent=2, default=float))
     extended = merge_config(env_config, {"speed": {"end_kmh": EXTENDED_RAMP_END_KMH}})
-    traces = {spec: ramp_trace(load_policy(spec, env_config), extended, seed) for spec in policies}
+    traces = {spec: ramp_trace(load_policy(spec, env_config, trusted), extended, seed) for spec in policies}
     for result in results:
         speeds = traces[result["policy"]][0]
         result["extended_ramp"] = {"end_kmh": EXTENDED_RAMP_END_KMH, "reached_kmh": round(float(speeds[-1]), 1),

@@ -5,7 +5,8 @@
 A run folder holds: ``config.json`` (the resolved run config), TensorBoard logs (``tb/``),
 checkpoints (``checkpoints/``, model plus VecNormalize statistics and, for off-policy
 algorithms, the replay buffer), the best model by periodic evaluation (``best_model.zip``
-with ``vecnormalize.pkl``), ``final_model.zip`` and ``progress.json``. Re-running the same
+with ``vecnormalize.json``, its observation statistics as plain numbers), ``final_model.zip``
+(with ``final_vecnormalize.json``) and ``progress.json``. Re-running the same
 command resumes from the latest readable checkpoint, so an interrupted run loses at most one
 checkpoint interval. Files the run writes itself are written atomically.
 """
@@ -16,15 +17,16 @@ import copy
 import json
 import os
 import re
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from bogie_env.envs.config import make_config
+from bogie_env.fileio import load_yaml, write_text_atomic
 from bogie_env.params import CONFIG_DIR, ConfigError
+
+from .policies import NORMALISATION_FILE, save_normalisation
 
 ALGOS = ("ppo", "sac", "td3")
 RUN_KEYS = {"algo", "seed", "total_timesteps", "n_envs", "env", "eval_env", "vecnormalize", "policy", "policy_kwargs",
@@ -32,10 +34,7 @@ RUN_KEYS = {"algo", "seed", "total_timesteps", "n_envs", "env", "eval_env", "vec
 
 
 def write_json_atomic(path: Path, payload: dict) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as handle:
-        json.dump(payload, handle, indent=2, default=float)
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(payload, indent=2, default=float))
 
 
 def load_run_config(path: str | Path | None, algo: str | None) -> dict:
@@ -47,7 +46,9 @@ def load_run_config(path: str | Path | None, algo: str | None) -> dict:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"agent config file {str(path)!r} does not exist")
-    config = yaml.safe_load(path.read_text()) or {}
+    config = load_yaml(path) or {}
+    if not isinstance(config, dict):
+        raise ConfigError(f"agent config file {str(path)!r} must hold a mapping of config keys")
     unknown = set(config) - RUN_KEYS
     if unknown:
         raise ConfigError(f"unknown key(s) {sorted(unknown)} in {path}; known keys: {sorted(RUN_KEYS)}")
@@ -178,9 +179,7 @@ def train(
         """On a new best evaluation: store the VecNormalize statistics beside best_model.zip."""
 
         def _on_step(self) -> bool:
-            tmp = out / "vecnormalize.pkl.tmp"
-            self.model.get_vec_normalize_env().save(str(tmp))
-            os.replace(tmp, out / "vecnormalize.pkl")
+            save_normalisation(self.model.get_vec_normalize_env(), out / NORMALISATION_FILE)
             return True
 
     class WallClock(BaseCallback):
@@ -209,11 +208,9 @@ def train(
                     reset_num_timesteps=resumed_from is None and done_before == 0, tb_log_name=algo)  # fmt: skip
     model.save(str(out / "final_model.tmp.zip"))
     os.replace(out / "final_model.tmp.zip", out / "final_model.zip")
-    tmp = out / "final_vecnormalize.pkl.tmp"
-    model.get_vec_normalize_env().save(str(tmp))
-    os.replace(tmp, out / "final_vecnormalize.pkl")
-    if not (out / "vecnormalize.pkl").exists():
-        os.replace(out / "final_vecnormalize.pkl", out / "vecnormalize.pkl")
+    save_normalisation(model.get_vec_normalize_env(), out / f"final_{NORMALISATION_FILE}")
+    if not (out / NORMALISATION_FILE).exists():
+        save_normalisation(model.get_vec_normalize_env(), out / NORMALISATION_FILE)
     summary = _summary(out, model, started, resumed_from, done_before)
     write_json_atomic(out / "progress.json", summary)
     env.close()

@@ -375,7 +375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (ConfigError, ValueError, FileNotFoundError) as error:
+    except (ConfigError, ValueError, OSError) as error:  # OSError: an --out path that is a file, no permission, ...
         print(f"bogie {args.command}: error: {error}", file=sys.stderr)
         return 2
 

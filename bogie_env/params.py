@@ -21,7 +21,6 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
 
 
 def _config_dir() -> Path:
@@ -225,8 +224,11 @@ class BogieParams:
         path = Path(path) if path is not None else DEFAULT_BOGIE_CONFIG
         if not path.is_file():
             raise ConfigError(f"bogie config file {str(path)!r} does not exist")
-        with path.open() as handle:
-            values = yaml.safe_load(handle) or {}
+        from .fileio import load_yaml
+
+        values = load_yaml(path) or {}
+        if not isinstance(values, dict):
+            raise ConfigError(f"bogie config file {str(path)!r} must hold a mapping of parameter names to values")
         return cls.from_dict(values, source=str(path))
 
     @classmethod

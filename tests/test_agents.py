@@ -100,15 +100,15 @@ def test_training_smoke_save_load_and_resume(tmp_path, algo):
     out = tmp_path / "run"
     summary = train(config, out, progress_bar=False)
     assert summary["timesteps"] >= 2048
-    for name in ("config.json", "best_model.zip", "vecnormalize.pkl", "final_model.zip", "progress.json"):
+    for name in ("config.json", "best_model.zip", "vecnormalize.json", "final_model.zip", "progress.json"):
         assert (out / name).is_file(), name
     assert list((out / "checkpoints").glob("rl_model_*_steps.zip")) and list((out / "tb").iterdir())
     # save/load round-trip: the loaded policy acts like the trained model on normalised input
-    policy = load_sb3_policy(out)
+    policy = load_sb3_policy(out, trusted=True)
     obs = np.random.default_rng(0).standard_normal((5, policy.model.observation_space.shape[0])).astype(np.float32)
     expected, _ = policy.model.predict(policy.normalise(obs), deterministic=True)
     assert np.array_equal(policy.act(obs), expected)
-    reloaded = load_policy(str(out / "best_model.zip"), make_config())
+    reloaded = load_policy(str(out / "best_model.zip"), make_config(), trusted=True)
     assert np.array_equal(reloaded.act(obs), policy.act(obs))
     # resuming continues from the latest checkpoint instead of starting again
     more = train(config, out, total_timesteps=4096, progress_bar=False)
@@ -121,7 +121,7 @@ def test_bad_policy_and_config_fail_clearly(tmp_path, env_config):
         load_policy("no/such/run", env_config)
     (tmp_path / "empty").mkdir()
     with pytest.raises(ConfigError, match="holds no SB3 model"):
-        load_policy(str(tmp_path / "empty"), env_config)
+        load_policy(str(tmp_path / "empty"), env_config, trusted=True)
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump({"algo": "ppo", "total_timesteps": 10, "n_envs": 1, "lr": 3}))
     with pytest.raises(ConfigError, match=r"unknown key\(s\) \['lr'\]"):

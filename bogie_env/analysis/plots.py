@@ -7,8 +7,6 @@ half-written figure behind.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import matplotlib
@@ -17,6 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..fileio import atomic_output  # noqa: E402
 from ..stability import KMH  # noqa: E402
 
 EN14363_KMH = 330.0  # EN 14363: stable to 30 km/h above the 300 km/h maximum running speed
@@ -25,16 +24,11 @@ EN14363_KMH = 330.0  # EN 14363: stable to 30 km/h above the 300 km/h maximum ru
 def save(fig, path: str | Path, dpi: int = 130) -> Path:
     """Write a figure atomically and close it."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-        os.replace(tmp, path)
+        with atomic_output(path, suffix=".png") as tmp:
+            fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.remove(tmp)
     return path
 
 

@@ -9,14 +9,13 @@ done.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ..dynamics import BogieModel
+from ..fileio import write_text_atomic
 from ..params import CONFIG_DIR, BogieParams
 from . import plots
 from .bifurcation import bifurcation_diagram, nonlinear_critical_speed
@@ -54,14 +53,6 @@ def _display_path(source: str) -> str:
         except (ValueError, OSError):
             continue
     return str(source)
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as handle:
-        handle.write(text)
-    os.replace(tmp, path)
 
 
 def describe_trend(curve) -> str:

@@ -11,11 +11,10 @@ import math
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
-
 from ..actuators import CHANNEL_NAMES as CHANNELS
 from ..actuators import CHANNELS as ACTUATOR_CHANNELS
 from ..actuators import MAX_DELAY_STEPS, MODES
+from ..fileio import load_yaml
 from ..params import CONFIG_DIR, BogieParams, ConfigError, load_params
 
 ACTUATOR_MODES = MODES
@@ -211,7 +210,9 @@ def make_config(
                 path = candidate
             else:
                 raise ConfigError(f"env config file {str(config)!r} does not exist")
-        user = yaml.safe_load(path.read_text()) or {}
+        user = load_yaml(path) or {}
+        if not isinstance(user, Mapping):
+            raise ConfigError(f"env config file {str(path)!r} must hold a mapping of config keys")
     elif config is not None:
         if not isinstance(config, Mapping):
             raise ConfigError(f"env config must be a mapping or a YAML path; got {type(config).__name__}")
