@@ -26,11 +26,11 @@ import hashlib
 import json
 import multiprocessing
 import os
-import tempfile
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from .fileio import write_text_atomic
 from .params import ConfigError
 
 BACKENDS = ("local", "ray")
@@ -124,14 +124,7 @@ class ChunkStore:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomic(path, text)
 
 
 # ---- the local backend: a process pool (or this process) -----------------------------------
