@@ -75,20 +75,27 @@ COEFFICIENT_NAMES: tuple[str, ...] = (
     "mb", "Ibz", "mw", "Iwx", "Iwy", "Iwz", "L1", "L2", "b1", "b2", "b3", "h1", "h2",
     "e", "r0", "lam", "Wpa", "Kpx", "Kpy", "Kpz", "Cpx", "Cpy", "Cpz",
     "Ksx", "Ksy", "Csx", "Csy", "Kr", "delta", "mu", "f11", "f12", "f22", "f33",
+    "h_Ksy", "h_Csy",
 )  # fmt: skip
 (
     P_MB, P_IBZ, P_MW, P_IWX, P_IWY, P_IWZ, P_L1, P_L2, P_B1, P_B2, P_B3, P_H1, P_H2,
     P_E, P_R0, P_LAM, P_WPA, P_KPX, P_KPY, P_KPZ, P_CPX, P_CPY, P_CPZ,
     P_KSX, P_KSY, P_CSX, P_CSY, P_KR, P_DELTA, P_MU, P_F11, P_F12, P_F22, P_F33,
+    P_H_KSY, P_H_CSY,
 ) = range(len(COEFFICIENT_NAMES))  # fmt: skip
 N_COEFFICIENTS = len(COEFFICIENT_NAMES)
 
 
 def coefficient_vector(params: BogieParams, creep: CreepCoefficients | None = None) -> np.ndarray:
-    """The float64 vector the kernels read: the parameters plus the creep coefficients."""
+    """The float64 vector the kernels read: the parameters, the creep coefficients and the
+    heights at which Ksy and Csy act in Eq. (43) (``params.secondary_heights``)."""
     creep = creep if creep is not None else creep_coefficients(params)
     values = params.to_dict()
     values.update(f11=creep.f11, f12=creep.f12, f22=creep.f22, f33=creep.f33)
+    if params.secondary_heights == "printed":  # Eqs. (43), (50) as printed
+        values.update(h_Ksy=params.h1, h_Csy=params.h2)
+    else:  # Table 1: h2 is the spring height, h1 the damper height
+        values.update(h_Ksy=params.h2, h_Csy=params.h1)
     return np.array([values[name] for name in COEFFICIENT_NAMES], dtype=np.float64)
 
 
@@ -221,8 +228,8 @@ def _rhs_row(x, V, Q, yt, p, out):
         m_roll = (
             gyro * dpsi
             + roll
-            - 2.0 * p[P_KSY] * p[P_H2] * yb
-            - 2.0 * p[P_CSY] * p[P_H1] * dyb
+            - 2.0 * p[P_KSY] * p[P_H_KSY] * yb
+            - 2.0 * p[P_CSY] * p[P_H_CSY] * dyb
             - roll_k * x[o + 6]
             - roll_c * dphi
         )

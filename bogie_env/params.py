@@ -112,14 +112,35 @@ FIELDS: dict[str, FieldSpec] = {
     "f33": FieldSpec("N", "longitudinal creep coefficient override", 0.0, 1.0e10, optional=True, source=_O),
 }
 
+#: Settings that take one of a few named values: name -> (allowed values, default, meaning).
+#: ``secondary_heights`` chooses the heights at which the secondary lateral spring and damper
+#: act in Eq. (43)'s roll moment: "table1" pairs Ksy with the spring height h2 and Csy with the
+#: damper height h1, as Table 1 and the nomenclature define them; "printed" pairs Ksy with h1
+#: and Csy with h2, as Eqs. (43) and (50) print them (docs/model.md, Section 3a).
+CHOICES: dict[str, tuple[tuple[str, ...], str, str]] = {
+    "secondary_heights": (("table1", "printed"), "table1", "heights of Ksy and Csy in Eq. (43)"),
+}
+
 #: The nine parameters of the paper's sensitivity study (Section 5).
 SENSITIVITY_PARAMS: tuple[str, ...] = ("Wpa", "Kpx", "Kpy", "Kpz", "Cpz", "Ksx", "Ksy", "Csx", "Csy")
+
+
+def validate_choice(name: str, value: Any) -> str:
+    """Return ``value`` if the named setting ``name`` (see :data:`CHOICES`) may take it."""
+    allowed = CHOICES[name][0]
+    if not isinstance(value, str) or value.strip() not in allowed:
+        raise ConfigError(f"setting {name!r} = {value!r} is not allowed; allowed: {', '.join(allowed)}")
+    return value.strip()
+
+
+def _known() -> str:
+    return ", ".join([*FIELDS, *CHOICES])
 
 
 def validate_value(name: str, value: Any) -> float | None:
     """Return ``value`` as a float if parameter ``name`` may take it, else raise ConfigError."""
     if name not in FIELDS:
-        raise ConfigError(f"unknown parameter {name!r}; known parameters: {', '.join(FIELDS)}")
+        raise ConfigError(f"unknown parameter {name!r}; known parameters: {_known()}")
     spec = FIELDS[name]
     if value is None:
         if spec.optional:
@@ -195,11 +216,14 @@ class BogieParams:
     f12: float | None = None
     f22: float | None = None
     f33: float | None = None
+    secondary_heights: str = "table1"
     source: str = field(default="", compare=False, repr=False)
 
     def __post_init__(self) -> None:
         for name in FIELDS:
             object.__setattr__(self, name, validate_value(name, getattr(self, name)))
+        for name in CHOICES:
+            object.__setattr__(self, name, validate_choice(name, getattr(self, name)))
 
     # ---- construction -------------------------------------------------------------
     @classmethod
@@ -207,11 +231,11 @@ class BogieParams:
         """Build from a mapping; unknown keys and missing required keys are errors."""
         if not isinstance(values, Mapping):
             raise ConfigError(f"bogie config {source or ''} must be a mapping of parameter names to numbers")
-        unknown = [key for key in values if key not in FIELDS]
+        unknown = [key for key in values if key not in FIELDS and key not in CHOICES]
         if unknown:
             raise ConfigError(
                 f"unknown bogie parameter(s) {', '.join(map(repr, unknown))}"
-                f"{' in ' + source if source else ''}; known parameters: {', '.join(FIELDS)}"
+                f"{' in ' + source if source else ''}; known parameters: {_known()}"
             )
         missing = [name for name, spec in FIELDS.items() if not spec.optional and name not in values]
         if missing:
@@ -240,8 +264,8 @@ class BogieParams:
     def replace(self, **changes: Any) -> "BogieParams":
         """A copy with some parameters set to new values (validated)."""
         for name in changes:
-            if name not in FIELDS:
-                raise ConfigError(f"unknown parameter {name!r}; known parameters: {', '.join(FIELDS)}")
+            if name not in FIELDS and name not in CHOICES:
+                raise ConfigError(f"unknown parameter {name!r}; known parameters: {_known()}")
         return dataclasses.replace(self, **changes)
 
     def scaled(self, **factors: float) -> "BogieParams":
@@ -263,9 +287,9 @@ class BogieParams:
         """Apply overrides: a mapping of names to values, or the CLI's ``NAME=VALUE`` strings."""
         return self.replace(**(dict(assignments) if isinstance(assignments, Mapping) else parse_assignments(assignments)))
 
-    def to_dict(self) -> dict[str, float | None]:
-        """Parameter name to value, in config order."""
-        return {name: getattr(self, name) for name in FIELDS}
+    def to_dict(self) -> dict[str, float | str | None]:
+        """Parameter name to value, in config order, then the named settings."""
+        return {name: getattr(self, name) for name in (*FIELDS, *CHOICES)}
 
 
 def parse_assignments(assignments: list[str] | tuple[str, ...]) -> dict[str, float | None]:

@@ -89,3 +89,12 @@ def test_conical_wheel_may_be_infinite_but_others_not(paper_params):
 def test_missing_file_is_a_clear_error(tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
         BogieParams.from_yaml(tmp_path / "nope.yaml")
+
+
+def test_secondary_heights_setting(paper_params):
+    assert paper_params.secondary_heights == "table1"
+    assert paper_params.with_overrides(["secondary_heights=printed"]).secondary_heights == "printed"
+    with pytest.raises(ConfigError, match=r"'secondary_heights' = 'both' is not allowed; allowed: table1, printed"):
+        paper_params.replace(secondary_heights="both")
+    with pytest.raises(ConfigError, match="secondary_heights"):
+        BogieParams.from_dict({**paper_params.to_dict(), "secondary_heights": 1.0})

@@ -9,7 +9,10 @@ this matrix.
 import numpy as np
 
 
-def condensed_jacobian(p, V, alpha):
+def condensed_jacobian(p, V, alpha, secondary_heights="table1"):
+    """Jacobian of Eqs. (47)-(52). ``secondary_heights``: "table1" puts Ksy at h2 and Csy at
+    h1 in Eq. (50) (Table 1's spring and damper heights), "printed" Ksy at h1 and Csy at h2."""
+    h_ksy, h_csy = {"table1": ("h2", "h1"), "printed": ("h1", "h2")}[secondary_heights]
     mw, Iwx, Iwy, Iwz = p["mw"], p["Iwx"], p["Iwy"], p["Iwz"]
     e, r0, lam, W = p["e"], p["r0"], p["lam"], p["Wpa"]
     f11, f12, f22, f33 = p["f11"], p["f12"], p["f22"], p["f33"]
@@ -53,7 +56,7 @@ def condensed_jacobian(p, V, alpha):
         row[dps] = Iwy * V / r0 - 2 * a * f12 * (r0 + e * lam) / V
         row[ph] = 2 * a * f12 * lam ** 2 + e * lam * W - 2 * p["Kpz"] * p["b1"] ** 2
         row[dph] = -2 * a * f11 * r0 * (r0 + e * lam) / V - 2 * p["Cpz"] * p["b1"] ** 2
-        row[yb] = -2 * p["Ksy"] * p["h2"]; row[dyb] = -2 * p["Csy"] * p["h1"]
+        row[yb] = -2 * p["Ksy"] * p[h_ksy]; row[dyb] = -2 * p["Csy"] * p[h_csy]
         J[dph] = row / Iwx
     # frame (Eqs. 51, 52 corrected)
     row = np.zeros(20)
