@@ -43,6 +43,8 @@ class Bug:
 
 
 BUGS = (
+    Bug("hertz_one_body_modulus", "Hertz contact modulus of one body, E/(1 - nu^2), for two", "bogie_env/contact.py",
+        "e_star = E / (2.0 * (1.0 - nu * nu))", "e_star = E / (1.0 - nu * nu)"),
     Bug("f11_x1.5", "lateral creep coefficient f11 x 1.5", "bogie_env/contact.py",
         '"f11": area * shear_modulus * c22,', '"f11": 1.5 * area * shear_modulus * c22,'),
     Bug("f11_x1.1", "lateral creep coefficient f11 x 1.1", "bogie_env/contact.py",
@@ -145,6 +147,8 @@ def main(argv: list[str] | None = None) -> int:
             if not args.no_tests:
                 row["failed"], row["tests_run"] = failing_tests(tree, files)
         results.append(row)
+        if args.json:  # after every bug, so a long run that is stopped keeps what it measured
+            Path(args.json).write_text(json.dumps({"test_files": list(files), "results": results}, indent=2))
         elapsed = time.monotonic() - start
         left = elapsed / (k + 1) * (len(chosen) - k - 1)
         print(f"[{k + 1}/{len(chosen)}] {bug.name}: {row.get('critical_speed_kmh')} km/h, "
@@ -158,8 +162,6 @@ def main(argv: list[str] | None = None) -> int:
         freq_text = f"{freq:.2f}" if isinstance(freq, (int, float)) else "-"
         caught = ", ".join(f"`{name}`" for name in row.get("failed", [])) or ("not run" if args.no_tests else "**none**")
         print(f"| {row['description']} (`{row['bug']}`) | {speed_text} | {freq_text} | {caught} |")
-    if args.json:
-        Path(args.json).write_text(json.dumps({"test_files": list(files), "results": results}, indent=2))
     return 0
 
 

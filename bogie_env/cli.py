@@ -275,7 +275,7 @@ def cmd_bifurcation(args: argparse.Namespace) -> int:
 
 @command("sensitivity", "critical speed against one or two parameters, or the whole Section-5 study")
 @json_option
-@argument("--fixed-contact", action="store_true", help="keep the nominal creep coefficients (the paper's convention)")
+@argument("--fixed-contact", action="store_true", help="hold the creep coefficients at their nominal values while a parameter varies (the paper does not say which it did; docs/model.md)")
 @argument("--chunk-size", type=int, default=None, help="points per task (default 256)")
 @argument("--workers", type=int, default=None,
           help="local processes, or the CPUs of a local Ray cluster (default: all cores)")

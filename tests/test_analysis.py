@@ -91,8 +91,8 @@ def test_sensitivity_points_equal_direct_critical_speed_calls(paper_params):
 
 
 def test_axle_load_recomputes_the_contact(paper_params):
-    """Unlike the paper, a load change grows the contact ellipse; --fixed-contact restores
-    the paper's convention and gives a different curve."""
+    """A load change grows the contact ellipse; --fixed-contact holds the creep coefficients
+    at their nominal values and gives a different curve."""
     grown = one_parameter(paper_params, "Wpa", [1.4])
     fixed = one_parameter(paper_params, "Wpa", [1.4], fixed_contact=True)
     assert abs(grown.critical_speed_kmh[0] - fixed.critical_speed_kmh[0]) > 0.5

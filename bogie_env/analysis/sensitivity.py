@@ -9,9 +9,10 @@ What is recomputed when a parameter changes: everything that depends on it. In
 particular, a different axle load ``Wpa`` changes the normal load, hence the Hertz contact
 ellipse (semi-axes grow as ``Wpa^(1/3)``) and the creep coefficients (``f11, f33`` grow as
 ``Wpa^(2/3)``, ``f12`` as ``Wpa``, ``f22`` as ``Wpa^(4/3)``), the saturation limit mu N and
-the gravitational stiffness terms. The paper recomputes only the varied parameter; with a
-fixed contact patch the load study would understate how the creep forces scale with load.
-``fixed_contact=True`` reproduces the paper's convention for comparison.
+the gravitational stiffness terms. The paper does not say whether its creep coefficients
+followed the load. ``fixed_contact=True`` holds them at their nominal values, for comparison:
+then the critical speed falls monotonically with the load, while the paper describes a
+maximum near the nominal load (docs/model.md, Section 4).
 
 The work is spread in chunks over local processes (all cores by default) or a Ray cluster
 (``backend="ray"``, docs/distributed.md), with a progress bar; with a store folder an interrupted
