@@ -182,10 +182,27 @@ def saturation(table, k):
 
 
 @njit(cache=True, inline="always")
-def channel_output(x, k, t, lag, target, table):
-    """Channel k's output at time t of an interval: lagged force minus lagged damping times its
-    velocity, saturated (a saturated damper keeps its sign, so it still only dissipates)."""
-    w = math.exp(-table[k, CH_DECAY_RATE] * t)
+def lag_weights(table, dt, n_sub, weights):
+    """``exp(-t / tau)`` of every channel at the times an RK4 interval of n_sub substeps
+    evaluates: row 3j + (0, 1, 2) at the start, middle and end of substep j, row 3 n_sub at dt.
+    The same for every row of a batch, so the driver computes them once per run of rows."""
+    h = dt / n_sub
+    for k in range(N_CHANNELS):
+        rate = table[k, CH_DECAY_RATE]
+        for j in range(n_sub):
+            t = j * h
+            weights[3 * j, k] = math.exp(-rate * t)
+            weights[3 * j + 1, k] = math.exp(-rate * (t + 0.5 * h))
+            weights[3 * j + 2, k] = math.exp(-rate * (t + h))
+        weights[3 * n_sub, k] = math.exp(-rate * dt)
+
+
+@njit(cache=True, inline="always")
+def channel_output(x, k, weight, lag, target, table):
+    """Channel k's output where the lag has weight ``exp(-t / tau)``: lagged force minus lagged
+    damping times its velocity, saturated (a saturated damper keeps its sign, so it still only
+    dissipates)."""
+    w = weight[k]
     force = lagged(lag[FORCE, k], target[FORCE, k], w)
     damping = lagged(lag[DAMPING, k], target[DAMPING, k], w)
     value = force - damping * channel_velocity(x, k)
@@ -194,10 +211,10 @@ def channel_output(x, k, t, lag, target, table):
 
 
 @njit(cache=True, inline="always")
-def advance_lag(lag, target, table, dt):
-    """The lag states at the end of an interval of dt (exact first order), in place."""
+def advance_lag(lag, target, weight):
+    """The lag states at the end of the interval (weights at dt; exact first order), in place."""
     for k in range(N_CHANNELS):
-        w = math.exp(-table[k, CH_DECAY_RATE] * dt)
+        w = weight[k]
         lag[FORCE, k] = lagged(lag[FORCE, k], target[FORCE, k], w)
         lag[DAMPING, k] = lagged(lag[DAMPING, k], target[DAMPING, k], w)
 

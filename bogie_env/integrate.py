@@ -48,12 +48,13 @@ assert N_CHANNELS <= N_STATES and N_INPUTS <= N_STATES and N_TRACK_SAMPLES <= N_
 
 
 @njit(cache=True, inline="always")
-def _stage_derivative(x, t, v0, accel, s0, lag, target, channels, track, p, scratch, out):
-    """dx/dt at time t inside the interval; also leaves the channel outputs in ``scratch.u``."""
+def _stage_derivative(x, t, weight, v0, accel, s0, lag, target, channels, track, p, scratch, out):
+    """dx/dt at time t inside the interval (lag weights ``weight`` at t); also leaves the
+    channel outputs in ``scratch[U]``."""
     u = scratch[U]
     q = scratch[Q]
     for k in range(N_CHANNELS):
-        u[k] = channel_output(x, k, t, lag, target, channels)
+        u[k] = channel_output(x, k, weight, lag, target, channels)
     generalised_forces(u, q)
     sample_track(track, s0 + v0 * t + 0.5 * accel * t * t, p[P_L1], scratch[YT])
     _rhs_row(x, v0 + accel * t, q, scratch[YT], p, out)
@@ -66,12 +67,13 @@ def _add_power(power, u, x, divisor):
 
 
 @njit(cache=True, inline="always")
-def _advance_row(x, v0, accel, s0, dt, n_sub, lag, target, channels, track, p, out, scratch):
+def _advance_row(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, track, p, out, scratch):
     """Advance one bogie by dt in n_sub RK4 substeps. Returns a status code.
 
     The speed is ``v0 + accel t`` and the distance ``s0 + v0 t + accel t^2 / 2`` within the
     interval; ``lag`` (2, N_CHANNELS) holds the channels' lag states at its start and ``target``
-    (2, N_CHANNELS) their targets (:mod:`bogie_env.actuators`); ``channels`` is the channel table
+    (2, N_CHANNELS) their targets and ``weights`` the lag weights at the stage times
+    (:func:`bogie_env.actuators.lag_weights`); ``channels`` is the channel table
     and ``track`` the track input (:mod:`bogie_env.track`). ``out`` (2, N_CHANNELS) receives
     the channel outputs at the end of the interval and the mean power over it.
     ``scratch`` (N_SCRATCH, 20) is allocated once per thread by the caller: allocating inside a
@@ -89,26 +91,26 @@ def _advance_row(x, v0, accel, s0, dt, n_sub, lag, target, channels, track, p, o
         power[k] = 0.0
     for j in range(n_sub):
         t = j * h
-        _stage_derivative(x, t, v0, accel, s0, lag, target, channels, track, p, scratch, k1)
+        _stage_derivative(x, t, weights[3 * j], v0, accel, s0, lag, target, channels, track, p, scratch, k1)
         _add_power(power, u, x, 6.0)
         for i in range(N_STATES):
             xs[i] = x[i] + 0.5 * h * k1[i]
-        _stage_derivative(xs, t + 0.5 * h, v0, accel, s0, lag, target, channels, track, p, scratch, k2)
+        _stage_derivative(xs, t + 0.5 * h, weights[3 * j + 1], v0, accel, s0, lag, target, channels, track, p, scratch, k2)
         _add_power(power, u, xs, 3.0)
         for i in range(N_STATES):
             xs[i] = x[i] + 0.5 * h * k2[i]
-        _stage_derivative(xs, t + 0.5 * h, v0, accel, s0, lag, target, channels, track, p, scratch, k3)
+        _stage_derivative(xs, t + 0.5 * h, weights[3 * j + 1], v0, accel, s0, lag, target, channels, track, p, scratch, k3)
         _add_power(power, u, xs, 3.0)
         for i in range(N_STATES):
             xs[i] = x[i] + h * k3[i]
-        _stage_derivative(xs, t + h, v0, accel, s0, lag, target, channels, track, p, scratch, k4)
+        _stage_derivative(xs, t + h, weights[3 * j + 2], v0, accel, s0, lag, target, channels, track, p, scratch, k4)
         _add_power(power, u, xs, 6.0)
         for i in range(N_STATES):
             x[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
     for k in range(N_CHANNELS):
         power[k] /= n_sub
     for k in range(N_CHANNELS):
-        out[OUT_FORCE, k] = channel_output(x, k, dt, lag, target, channels)
+        out[OUT_FORCE, k] = channel_output(x, k, weights[3 * n_sub], lag, target, channels)
     for i in range(N_STATES):
         if not math.isfinite(x[i]):
             return STATUS_NONFINITE

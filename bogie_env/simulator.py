@@ -29,7 +29,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .actuators import CH_DECAY_RATE, DAMPING, DELAY_SLOTS, FORCE, N_CHANNELS, advance_lag, channel_table, delayed_targets
+from .actuators import CH_DECAY_RATE, DAMPING, DELAY_SLOTS, FORCE, N_CHANNELS, advance_lag, channel_table, delayed_targets, lag_weights
 from .dynamics import N_STATES, P_L1, BogieModel, check_speed
 from .integrate import FASTMATH, N_SCRATCH, STATUS_OK, _advance_row, stable_substep
 from .track import N_TRACK_SAMPLES, TrackInput, TrackProfile, sample_track
@@ -102,6 +102,8 @@ def advance_rows(start, stop, rows, channels, track, dt, n_sub):
     x, motion, coefficients, lag, delay, command, output, track_sample, status = rows
     scratch = np.empty((N_SCRATCH, N_STATES))
     target = np.empty((2, N_CHANNELS))
+    weights = np.empty((3 * n_sub + 1, N_CHANNELS))
+    lag_weights(channels, dt, n_sub, weights)
     for n in range(start, stop):
         m = motion[n]
         steps = int(m[M_STEPS])
@@ -110,12 +112,12 @@ def advance_rows(start, stop, rows, channels, track, dt, n_sub):
         a = interval_accel(m, dt)
         s0 = m[M_DISTANCE]
         p = coefficients[n]
-        status[n] = _advance_row(x[n], v0, a, s0, dt, n_sub, lag[n], target, channels, track, p, output[n], scratch)
+        status[n] = _advance_row(x[n], v0, a, s0, dt, n_sub, lag[n], target, weights, channels, track, p, output[n], scratch)
         m[M_START_SPEED] = v0
         m[M_SPEED] = v0 + a * dt
         m[M_DISTANCE] = s0 + v0 * dt + 0.5 * a * dt * dt
         m[M_STEPS] = steps + 1
-        advance_lag(lag[n], target, channels, dt)
+        advance_lag(lag[n], target, weights[3 * n_sub])
         sample_track(track, m[M_DISTANCE], p[P_L1], track_sample[n])
 
 

@@ -348,3 +348,19 @@ def test_sensors_read_what_they_name():
     for index, value in expected.items():
         assert obs[index] == pytest.approx(np.clip(value, -10, 10), rel=1e-5, abs=1e-6), T.SENSORS[index] if index < 6 else "speed"
     assert np.allclose(obs[7:], task.actuator_force[0] / task.actuator_limits, rtol=1e-5)
+
+
+@pytest.mark.parametrize("n", [3, PARALLEL_MIN_ROWS])
+def test_a_non_finite_action_steps_nothing_on_either_loop(n):
+    task = HuntingTask(n, num_threads=2)
+    task.seed_rows(np.arange(n), list(range(n)))
+    task.reset_rows(np.arange(n))
+    before = task.states.copy()
+    actions = np.zeros((n, 4), dtype=np.float32)
+    actions[n - 2, 3] = np.nan
+    with pytest.raises(ValueError, match=f"env {n - 2}, component 3"):
+        task.step(actions)
+    assert np.array_equal(task.states, before)
+    actions[n - 2, 3] = 7.0  # clipped to 1
+    task.step(actions)
+    assert task.actions[n - 2, 3] == 1.0

@@ -64,7 +64,8 @@ def passive_actuators() -> dict[str, Any]:
 
 
 def semi_active_actuators() -> dict[str, Any]:
-    return {name: {**spec, "mode": "semi_active"} for name, spec in _ACTUATOR_DEFAULTS.items()}
+    """Every channel that is on by default becomes a semi-active damper."""
+    return {name: {**spec, "mode": "semi_active" if spec["mode"] != "off" else "off"} for name, spec in _ACTUATOR_DEFAULTS.items()}
 
 
 def merge_config(base: dict, update: Mapping) -> dict:

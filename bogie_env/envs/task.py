@@ -57,6 +57,7 @@ from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, TrackInput, alignm
 from .config import bogie_params, make_config, max_steps_for
 
 KMH = 3.6
+_FLOAT_TYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 # ---- the task's per-row arrays -----------------------------------------------------------------
 # hunting detector: exponentially weighted mean squares of the wheelsets' displacement
@@ -236,6 +237,29 @@ def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_r
         _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch)
 
 
+@njit(cache=True, inline="always")
+def _clip_actions(action, out):
+    """out = action clipped to [-1, 1]; the flat index of the first non-finite entry, or -1
+    (then out is incomplete and nothing may be stepped)."""
+    for n in range(action.shape[0]):
+        for j in range(action.shape[1]):
+            value = action[n, j]
+            if not math.isfinite(value):
+                return n * action.shape[1] + j
+            out[n, j] = min(max(value, -1.0), 1.0)
+    return -1
+
+
+@njit(cache=True, fastmath=FASTMATH)
+def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales):
+    """Check and clip the actions, then one env step of every row on the calling thread;
+    returns -1, or the flat index of a non-finite action (nothing stepped)."""
+    bad = _clip_actions(action_in, action)
+    if bad < 0:
+        _step_rows(0, action.shape[0], sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales)
+    return bad
+
+
 @njit(cache=True, fastmath=FASTMATH, parallel=True)
 def _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales):
     n_rows = action.shape[0]
@@ -405,35 +429,47 @@ class HuntingTask:
         return self.obs
 
     # ---- stepping -------------------------------------------------------------------------------
-    def check_actions(self, actions: Any) -> np.ndarray:
-        """(N, action_dim) finite actions, clipped to [-1, 1]; anything else raises."""
-        a = np.asarray(actions, dtype=np.float64)
+    def _action_array(self, actions: Any) -> np.ndarray:
+        """The actions as an (N, action_dim) float array (a view where possible); bad shapes raise."""
+        a = actions if isinstance(actions, np.ndarray) and actions.dtype in _FLOAT_TYPES else np.asarray(actions, dtype=np.float64)
         if a.shape != (self.num_envs, self.action_dim):
             if self.num_envs == 1 and a.shape == (self.action_dim,):
-                a = a[None, :]
-            else:
-                raise ValueError(
-                    f"action has shape {np.shape(actions)}; expected ({self.num_envs}, {self.action_dim})"
-                    + (f" or ({self.action_dim},)" if self.num_envs == 1 else "")
-                )
-        if not np.all(np.isfinite(a)):
-            bad = np.argwhere(~np.isfinite(a))[0]
+                return a[None, :]
             raise ValueError(
-                f"action contains NaN or inf (env {bad[0]}, component {bad[1]}: {a[tuple(bad)]!r}); "
-                "actions must be finite and are clipped to [-1, 1]"
+                f"action has shape {np.shape(actions)}; expected ({self.num_envs}, {self.action_dim})"
+                + (f" or ({self.action_dim},)" if self.num_envs == 1 else "")
             )
-        np.clip(a, -1.0, 1.0, out=self.actions)
+        return a
+
+    def _raise_non_finite(self, a: np.ndarray, flat: int) -> None:
+        row, col = divmod(flat, self.action_dim)
+        raise ValueError(
+            f"action contains NaN or inf (env {row}, component {col}: {a[row, col]!r}); "
+            "actions must be finite and are clipped to [-1, 1]"
+        )
+
+    def check_actions(self, actions: Any) -> np.ndarray:
+        """(N, action_dim) finite actions, clipped to [-1, 1]; anything else raises."""
+        a = self._action_array(actions)
+        bad = _clip_actions(a, self.actions)
+        if bad >= 0:
+            self._raise_non_finite(a, bad)
         return self.actions
 
     def step(self, actions: Any) -> None:
-        """Advance every row by one env step."""
-        a = self.check_actions(actions)
+        """Advance every row by one env step (nothing is stepped if an action is bad)."""
+        a = self._action_array(actions)
         sim = self.sim
-        args = (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, a, self._task_rows, self.settings, self.state_scales)
+        args = (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, self.actions, self._task_rows, self.settings,
+                self.state_scales)  # fmt: skip
         if use_threads(self.num_envs, sim.num_threads):
-            _step_parallel(*args)
+            bad = _clip_actions(a, self.actions)
+            if bad < 0:
+                _step_parallel(*args)
         else:
-            _step_rows(0, self.num_envs, *args)
+            bad = _step_serial(a, *args)
+        if bad >= 0:
+            self._raise_non_finite(a, bad)
         if self.config["observation"]["noise"] > 0:
             self._add_noise(np.arange(self.num_envs))
 
@@ -536,16 +572,17 @@ class HuntingTask:
 
     def info_dict(self, row: int) -> dict[str, Any]:
         """The step info of one environment (see ``BogieHuntingEnv``)."""
-        info = self.info[row]
-        onset = float(info[I_ONSET_KMH])
-        flags = self.flags[row]
+        info = self.info[row].copy()  # the arrays below are views of this copy
+        values = info.tolist()
+        flags = self.flags[row].tolist()
+        onset = values[I_ONSET_KMH]
         return {
-            "speed_kmh": float(info[I_SPEED_KMH]),
+            "speed_kmh": values[I_SPEED_KMH],
             "hunting": bool(flags[F_HUNTING]),
             "onset_speed_kmh": None if onset != onset else onset,
-            "lateral_rms_m": info[I_RMS1 : I_RMS2 + 1].copy(),
-            "actuator_force": info[I_FORCE : I_FORCE + N_CHANNELS].copy(),
-            "actuator_power": info[I_POWER : I_POWER + N_CHANNELS].copy(),
+            "lateral_rms_m": info[I_RMS1 : I_RMS2 + 1],
+            "actuator_force": info[I_FORCE : I_FORCE + N_CHANNELS],
+            "actuator_power": info[I_POWER : I_POWER + N_CHANNELS],
             "blowup": bool(flags[F_BLOWUP]),
         }
 
