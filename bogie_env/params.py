@@ -292,14 +292,14 @@ class BogieParams:
         return {name: getattr(self, name) for name in (*FIELDS, *CHOICES)}
 
 
-def parse_assignments(assignments: list[str] | tuple[str, ...]) -> dict[str, float | None]:
+def parse_assignments(assignments: list[str] | tuple[str, ...]) -> dict[str, float | str | None]:
     """The CLI's ``--set NAME=VALUE`` items, parsed and validated once, as ``{name: value}``."""
-    changes: dict[str, float | None] = {}
+    changes: dict[str, float | str | None] = {}
     for item in assignments:
         if "=" not in item:
             raise ConfigError(f"--set {item!r}: expected NAME=VALUE, e.g. Csy=45000")
         name, value = (part.strip() for part in item.split("=", 1))
-        changes[name] = validate_value(name, value)
+        changes[name] = validate_choice(name, value) if name in CHOICES else validate_value(name, value)
     return changes
 
 
