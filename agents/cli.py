@@ -30,7 +30,7 @@ AGENTS_EXTRA = ("stable_baselines3", "torch", "tensorboard", "tqdm", "rich")
 # ---------------------------------------------------------------------------------
 @command("train", "train an SB3 agent (PPO, SAC, TD3) on the native batched VecEnv; resumes if interrupted")
 @argument("--no-progress", action="store_true", help="no progress bar")
-@argument("--no-resume", action="store_true", help="start afresh even if the run folder has checkpoints")
+@argument("--no-resume", action="store_true", help="start afresh: an earlier run in --out is moved to OUT/previous/<UTC time>/ (nothing is deleted)")
 @argument("--seed", type=int, default=None, help="override the config's seed")
 @argument("--timesteps", type=int, default=None, help="override the config's total_timesteps")
 @argument("--out", required=True, help="run folder, e.g. runs/ppo")

@@ -164,6 +164,16 @@ def load_normalisation(path: str | Path) -> dict:
             "epsilon": epsilon, "count": count}  # fmt: skip
 
 
+def apply_normalisation(vec_normalize, stats: dict) -> None:
+    """Set a VecNormalize's observation statistics from :func:`load_normalisation`'s result."""
+    if stats["mean"] is None:
+        vec_normalize.norm_obs = False
+    else:
+        vec_normalize.obs_rms.mean, vec_normalize.obs_rms.var = stats["mean"].copy(), stats["var"].copy()
+        vec_normalize.obs_rms.count = stats["count"]
+    vec_normalize.clip_obs, vec_normalize.epsilon = stats["clip_obs"], stats["epsilon"]
+
+
 def _load_legacy_pickle(path: Path) -> dict:
     """A VecNormalize pickle (code: only called when trusted)."""
     import pickle

@@ -35,6 +35,7 @@ import yaml
 
 from bogie_env.params import CONFIG_DIR, ConfigError
 
+from .policies import NORMALISATION_FILE, apply_normalisation, load_normalisation
 from .train import load_run_config, train, write_json_atomic
 
 TASK_IDS = ("Bogie/Hunting-v1", "Bogie/Hunting-v0")  # newest first
@@ -134,9 +135,9 @@ def score(run_dir: Path, config: dict, episodes: int, seed: int) -> float:
     from .vec_env import BogieHuntingSB3VecEnv
 
     venv = VecMonitor(BogieHuntingSB3VecEnv(episodes, config.get("eval_env") or {}, seed=seed + 20_000))
-    venv = VecNormalize.load(str(run_dir / "final_vecnormalize.pkl"), venv) if (run_dir / "final_vecnormalize.pkl").is_file() \
-        else VecNormalize.load(str(run_dir / "vecnormalize.pkl"), venv)  # fmt: skip
-    venv.training, venv.norm_reward = False, False
+    final = run_dir / f"final_{NORMALISATION_FILE}"
+    venv = VecNormalize(venv, training=False, norm_reward=False)
+    apply_normalisation(venv, load_normalisation(final if final.is_file() else run_dir / NORMALISATION_FILE))
     model = {"ppo": PPO, "sac": SAC, "td3": TD3}[config["algo"]].load(str(run_dir / "final_model.zip"), device="cpu")
     rewards, _ = evaluate_policy(model, venv, n_eval_episodes=episodes, deterministic=True, return_episode_rewards=True)
     venv.close()

@@ -110,10 +110,22 @@ def test_training_smoke_save_load_and_resume(tmp_path, algo):
     assert np.array_equal(policy.act(obs), expected)
     reloaded = load_policy(str(out / "best_model.zip"), make_config(), trusted=True)
     assert np.array_equal(reloaded.act(obs), policy.act(obs))
-    # resuming continues from the latest checkpoint instead of starting again
+    # resuming continues from the latest checkpoint instead of starting again, and keeps the
+    # evaluation history: with a recorded best no later evaluation can beat, best_model.zip stays
+    history = out / "eval" / "evaluations.npz"
+    with np.load(history) as data:
+        earlier = {key: data[key] for key in data.files}
+    earlier["results"] = earlier["results"].copy()
+    earlier["results"][0] = 1e9
+    np.savez(history, **earlier)
+    best_before = (out / "best_model.zip").read_bytes()
     more = train(config, out, total_timesteps=4096, progress_bar=False)
     assert more["resumed_from"] is not None and more["timesteps"] >= 4096
     assert more["steps_this_session"] < 4096
+    assert (out / "best_model.zip").read_bytes() == best_before
+    with np.load(history) as data:
+        assert len(data["timesteps"]) > len(earlier["timesteps"]) and data["results"][0][0] == 1e9
+    assert more["best_eval"]["mean_return"] == 1e9
 
 
 def test_bad_policy_and_config_fail_clearly(tmp_path, env_config):
@@ -128,7 +140,7 @@ def test_bad_policy_and_config_fail_clearly(tmp_path, env_config):
         load_run_config(bad, "ppo")
     with pytest.raises(ConfigError, match="--algo 'sac' but"):
         load_run_config(_write(tmp_path, {"algo": "ppo", "total_timesteps": 10, "n_envs": 1}), "sac")
-    with pytest.raises(ConfigError, match="'n_envs' = 0 must be a positive integer"):
+    with pytest.raises(ConfigError, match=r"'n_envs' = 0 is not allowed; allowed: an integer in \[1, 4096\]"):
         load_run_config(_write(tmp_path, {"algo": "ppo", "total_timesteps": 10, "n_envs": 0}), "ppo")
     with pytest.raises(ConfigError, match="unknown config key 'speed.fast'"):
         load_run_config(_write(tmp_path, {"algo": "ppo", "total_timesteps": 10, "n_envs": 1,
