@@ -3,6 +3,7 @@
     bogie train --algo ppo --config configs/agents/ppo.yaml --out runs/ppo
     bogie evaluate --policy passive --policy pretrained --json
     bogie results --policy passive --policy lqr --out results/table
+    bogie results ... --backend ray [--address HOST:PORT]       (one Ray task per controller and part)
     bogie tune --algo ppo --trials 4 --out runs/tune_ppo          (needs the [distributed] extra)
 
 The library stands alone (``python -m bogie_env.cli`` has the analysis commands); this module
@@ -20,7 +21,8 @@ from typing import Sequence
 
 from bogie_env import cli as library_cli
 from bogie_env.analysis.report import write_text_atomic
-from bogie_env.cli import argument, bogie_options, command, env_config_from_args, json_option, print_json
+from bogie_env.cli import (argument, backend_options, bogie_options, check_backend_args, command, env_config_from_args,
+                           json_option, print_json)  # fmt: skip
 from bogie_env.params import ConfigError
 
 #: Modules of the ``[agents]`` extra: a missing one is reported with the install command.
@@ -79,22 +81,32 @@ def cmd_tune(args: argparse.Namespace) -> int:
 @argument("--policy", action="append", required=True,
           help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip, needs --trust-policy); "
                "repeatable")
+@backend_options
 @bogie_options
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluate import ProtocolSettings, evaluate_policy
     from .policies import load_policy
 
+    check_backend_args(args)
     env_config = env_config_from_args(args)
     parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
     allowed = {"critical", "ramp", "effort", "robustness"}
     if not parts or set(parts) - allowed:
         raise ConfigError(f"--parts {args.parts!r}: allowed parts are {', '.join(sorted(allowed))}")
     settings = ProtocolSettings(seed=args.seed)
-    results = []
-    for spec in args.policy:
-        result = evaluate_policy(load_policy(spec, env_config, args.trust_policy), env_config, settings, parts)
+    if args.backend == "ray":  # one task per controller and part (docs/distributed.md)
+        from .evaluation_tasks import evaluate_many
+
+        for spec in args.policy:
+            load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any task starts
+        store = Path(f"{args.out}.chunks") if args.out else None
+        results = evaluate_many(args.policy, env_config, settings, parts, args.backend, args.address,
+                                store_dir=store, progress=not args.json, trusted=args.trust_policy)  # fmt: skip
+    else:
+        results = [evaluate_policy(load_policy(spec, env_config, args.trust_policy), env_config, settings, parts)
+                   for spec in args.policy]  # fmt: skip
+    for spec, result in zip(args.policy, results):
         result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
-        results.append(result)
     payload = {"policies": results}
     if args.out:
         write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
@@ -122,12 +134,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 @argument("--out", required=True, help="output folder, e.g. docs/results")
 @argument("--trust-policy", action="store_true", help="allow loading policy PATHs (an SB3 model file is code)")
 @argument("--policy", action="append", required=True, help="as for evaluate; repeatable")
+@backend_options
 @bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
     from .results import run
 
+    check_backend_args(args)
     payload = run(args.policy, env_config_from_args(args), Path(args.out), args.resume, args.seed,
-                  trusted=args.trust_policy)
+                  trusted=args.trust_policy, backend=args.backend, address=args.address)  # fmt: skip
     print((Path(args.out) / "table.md").read_text())
     return 0 if payload else 1
 

@@ -148,8 +148,11 @@ def table(results: list[dict], passive_kmh: float | None) -> str:
 
 
 def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
-        settings: ProtocolSettings | None = None, parts: tuple[str, ...] = PARTS, trusted: bool = False) -> dict:  # fmt: skip
-    """Evaluate ``policies`` into ``out``; ``trusted`` allows policy paths (an SB3 model file is code)."""
+        settings: ProtocolSettings | None = None, parts: tuple[str, ...] = PARTS, trusted: bool = False,
+        backend: str = "local", address: str | None = None) -> dict:  # fmt: skip
+    """Evaluate ``policies`` into ``out``; ``trusted`` allows policy paths (an SB3 model file is code).
+    ``backend="ray"`` evaluates every controller and part as Ray tasks first (finished tasks kept in
+    ``out/chunks``, so a rerun resumes); the figures and the table are made here as locally."""
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {str(out)!r} is an existing file; give a folder")
     out.mkdir(parents=True, exist_ok=True)
@@ -161,14 +164,23 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
         except (json.JSONDecodeError, AttributeError, KeyError, TypeError) as error:
             raise ConfigError(f"--resume: {str(json_path)!r} is not a results file ({error}); move it away") from None
     settings = settings or ProtocolSettings(seed=seed)
+    distributed: dict[str, dict] = {}
+    if backend != "local":
+        from .evaluation_tasks import evaluate_many
+
+        todo = [spec for spec in dict.fromkeys(policies) if spec not in done]
+        for spec in todo:
+            load_policy(spec, env_config, trusted)  # a bad name or path fails before any task starts
+        distributed = dict(zip(todo, evaluate_many(todo, env_config, settings, parts, backend, address,
+                                                   store_dir=out / "chunks", trusted=trusted)))  # fmt: skip
     passive_trace = ramp_trace(load_policy("passive", env_config), env_config, seed)
     results = []
     for spec in policies:
         if spec in done:
             results.append(done[spec])
             continue
-        policy = load_policy(spec, env_config, trusted)
-        result = evaluate_policy(policy, env_config, settings, parts)
+        result = distributed[spec] if spec in distributed else \
+            evaluate_policy(load_policy(spec, env_config, trusted), env_config, settings, parts)  # fmt: skip
         result["policy"] = spec
         folder = PRETRAINED_DIR if spec == "pretrained" else Path(spec)
         progress = folder / "progress.json" if folder.is_dir() else None

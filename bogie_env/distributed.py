@@ -75,8 +75,15 @@ def chunked(items: Sequence, size: int) -> list[list]:
 
 
 def _canonical(value: Any) -> Any:
-    """The value as JSON gives it back (tuples become lists); NaN and infinities are kept."""
-    return json.loads(json.dumps(value))
+    """The value as JSON gives it back (tuples become lists, numpy scalars Python numbers);
+    NaN and infinities are kept."""
+    return json.loads(json.dumps(value, default=_json_default))
+
+
+def _json_default(value: Any) -> Any:
+    if hasattr(value, "tolist"):  # numpy scalars and arrays
+        return value.tolist()
+    raise TypeError(f"a chunk's result must be JSON data; got {type(value).__name__}")
 
 
 class ChunkStore:
@@ -120,7 +127,7 @@ class ChunkStore:
             return False, None
 
     def save(self, index: int, result: Any) -> None:
-        _write_atomic(self._path(index), json.dumps({"index": index, "result": result}))
+        _write_atomic(self._path(index), json.dumps({"index": index, "result": result}, default=_json_default))
 
 
 def _write_atomic(path: Path, text: str) -> None:
@@ -200,12 +207,13 @@ def map_chunks(
     desc: str = "chunks",
     max_retries: int = DEFAULT_MAX_RETRIES,
     weight: Callable[[list], int] = len,
+    unit: str = "pt",
 ) -> list:
     """``[func(shared, chunk) for chunk in chunks]`` on the chosen backend, resumable with a store.
 
     ``workers``: local processes (default: all cores; 1 runs in this process), or the CPUs of a
     local Ray cluster this call starts (ignored when joining a cluster by ``address``).
-    ``weight(chunk)`` is the chunk's share of the progress bar (default: its length)."""
+    ``weight(chunk)`` is the chunk's share of the progress bar (default: its length), counted in ``unit``."""
     check_backend(backend)
     if backend == "local" and address is not None:
         raise ConfigError(f"--address {address!r} is for --backend ray; the local backend runs on this machine")
@@ -226,7 +234,7 @@ def map_chunks(
         from tqdm.auto import tqdm
 
         total = sum(weight(chunk) for chunk in chunks)
-        bar = tqdm(total=total, initial=total - sum(weight(chunks[i]) for i in todo), desc=desc, unit="pt",
+        bar = tqdm(total=total, initial=total - sum(weight(chunks[i]) for i in todo), desc=desc, unit=unit,
                    leave=False, smoothing=0.1)  # fmt: skip
 
     def on_done(index: int, result: Any) -> None:

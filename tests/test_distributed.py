@@ -220,3 +220,66 @@ def test_rl_zoo_trains_on_the_registered_id(tmp_path):
     from stable_baselines3 import PPO
 
     assert PPO.load(model, device="cpu").observation_space.shape[0] > 0
+
+
+# ---- the evaluation protocol as tasks ------------------------------------------------------------
+def _small_settings():
+    from bogie_agents.evaluate import ProtocolSettings
+
+    return ProtocolSettings(v_min_kmh=300.0, v_max_kmh=400.0, grid_step_kmh=50.0, tol_kmh=25.0, duration_s=11.0,
+                            ramp_seeds=1, effort_duration_s=1.0, effort_seeds=1,
+                            variants={"Csy-50%": {"Csy": 0.5}, "Wpa+50%": {"Wpa": 1.5}})  # fmt: skip
+
+
+def _die_then_run_units(shared, chunk):
+    """An evaluation task whose worker is killed on its first attempt."""
+    from bogie_agents.evaluation_tasks import run_units
+
+    marker_dir, inner = shared
+    marker = Path(marker_dir) / f"attempted_{chunk[0][0]}_{chunk[0][1]}"
+    if not marker.exists():
+        marker.write_text("1")
+        os._exit(1)
+    return run_units(inner, chunk)
+
+
+def _evaluation_equals_local(tmp_path, specs, parts, n_units):
+    from bogie_agents.evaluate import evaluate_policy
+    from bogie_agents.evaluation_tasks import evaluate_many
+    from bogie_agents.policies import load_policy
+    from bogie_env.envs.config import make_config
+
+    env_config, settings = make_config(), _small_settings()
+    local = [evaluate_policy(load_policy(s, env_config), env_config, settings, parts) for s in specs]
+    remote = evaluate_many(specs, env_config, settings, parts, "ray", store_dir=tmp_path, progress=False)
+    assert json.dumps(remote, default=float) == json.dumps(local, default=float)
+    stored = sorted(tmp_path.rglob("chunk_*.json"))
+    assert len(stored) == n_units
+    stored[-1].unlink()
+    again = evaluate_many(specs, env_config, settings, parts, "ray", store_dir=tmp_path, progress=False)
+    assert json.dumps(again, default=float) == json.dumps(local, default=float)
+    return remote
+
+
+def test_ray_evaluation_equals_local_bitwise_and_resumes(ray_cluster, tmp_path):
+    remote = _evaluation_equals_local(tmp_path, ["passive", "skyhook"], ("effort",), 2)
+    assert remote[1]["effort"]["rms_force"]["frame_lateral"] > 0  # skyhook acts: not a trivial all-zero result
+
+
+@pytest.mark.slow
+def test_ray_evaluation_of_critical_speeds_equals_local_bitwise(ray_cluster, tmp_path):
+    remote = _evaluation_equals_local(tmp_path, ["passive", "lqr"], ("critical", "robustness"), 2 * 3)
+    assert list(remote[1]["robustness"]) == ["Csy-50%", "Wpa+50%"]
+
+
+def test_ray_killed_evaluation_task_is_retried(ray_cluster, tmp_path):
+    from bogie_agents.evaluation_tasks import run_units
+    from bogie_env.envs.config import make_config
+
+    env_config, settings = make_config(), _small_settings()
+    chunks = [[["passive", "effort", None]], [["skyhook", "effort", None]]]
+    out = dist.map_chunks(_die_then_run_units, chunks, shared=(str(tmp_path), (env_config, settings)), backend="ray",
+                          progress=False)  # the default max_retries, as evaluate_many uses  # fmt: skip
+    assert len(list(tmp_path.glob("attempted_*"))) == 2
+    for chunk, result in zip(chunks, out):
+        assert json.dumps(result, default=float) == json.dumps(run_units((env_config, settings), chunk), default=float)
