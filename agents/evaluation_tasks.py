@@ -71,13 +71,13 @@ def _fingerprint(spec: str) -> list:
 
 
 def definition(specs: list[str], env_config: dict, settings: ProtocolSettings) -> dict:
-    from bogie_env.envs import core, kernel
+    import bogie_env
 
     return {
         "env_config": env_config,
         "settings": dataclasses.asdict(settings),
         "controllers": {spec: _fingerprint(spec) for spec in specs},
-        "code": source_digest(evaluate, controllers, policies, core, kernel, sys.modules[__name__]),
+        "code": source_digest(bogie_env, evaluate, controllers, policies, sys.modules[__name__]),
     }
 
 

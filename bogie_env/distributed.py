@@ -258,9 +258,13 @@ def map_chunks(
 
 
 def source_digest(*modules) -> str:
-    """A short hash of the modules' source files: part of a study's definition, so that a
-    changed computation does not reuse chunks stored by the old one."""
+    """A short hash of the modules' source files (a package: every ``.py`` file under it), part
+    of a study's definition so that changed code does not reuse chunks stored by the old code."""
     digest = hashlib.sha256()
     for module in modules:
-        digest.update(Path(module.__file__).read_bytes())
+        root = Path(module.__file__)
+        files = sorted(root.parent.rglob("*.py")) if hasattr(module, "__path__") else [root]
+        for path in files:
+            digest.update(path.name.encode())
+            digest.update(path.read_bytes())
     return digest.hexdigest()[:16]

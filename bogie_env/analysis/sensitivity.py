@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -83,10 +82,9 @@ def _evaluate_chunk(params: BogieParams, chunk: list) -> list[float]:
 
 def study_definition(params: BogieParams) -> dict:
     """What fixes a study's numbers besides its points: the base bogie and the code computing them."""
-    from .. import contact, dynamics, stability
-    from .. import params as params_module
+    import bogie_env
 
-    return {"params": params.to_dict(), "code": source_digest(contact, dynamics, stability, params_module, sys.modules[__name__])}
+    return {"params": params.to_dict(), "code": source_digest(bogie_env)}
 
 
 def run_tasks(
