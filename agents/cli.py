@@ -81,6 +81,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
 @argument("--policy", action="append", required=True,
           help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip, needs --trust-policy); "
                "repeatable")
+@argument("--workers", type=int, default=None, help="CPUs of the local Ray cluster that --backend ray starts (default: all)")
 @backend_options
 @bogie_options
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -88,6 +89,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from .policies import load_policy
 
     check_backend_args(args)
+    _check_workers(args)
     env_config = env_config_from_args(args)
     parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
     allowed = {"critical", "ramp", "effort", "robustness"}
@@ -100,7 +102,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         for spec in args.policy:
             load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any task starts
         store = Path(f"{args.out}.chunks") if args.out else None
-        results = evaluate_many(args.policy, env_config, settings, parts, args.backend, args.address,
+        results = evaluate_many(args.policy, env_config, settings, parts, args.backend, args.address, args.workers,
                                 store_dir=store, progress=not args.json, trusted=args.trust_policy)  # fmt: skip
     else:
         results = [evaluate_policy(load_policy(spec, env_config, args.trust_policy), env_config, settings, parts)
@@ -134,16 +136,26 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 @argument("--out", required=True, help="output folder, e.g. docs/results")
 @argument("--trust-policy", action="store_true", help="allow loading policy PATHs (an SB3 model file is code)")
 @argument("--policy", action="append", required=True, help="as for evaluate; repeatable")
+@argument("--workers", type=int, default=None, help="CPUs of the local Ray cluster that --backend ray starts (default: all)")
 @backend_options
 @bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
     from .results import run
 
     check_backend_args(args)
+    _check_workers(args)
     payload = run(args.policy, env_config_from_args(args), Path(args.out), args.resume, args.seed,
-                  trusted=args.trust_policy, backend=args.backend, address=args.address)  # fmt: skip
+                  trusted=args.trust_policy, backend=args.backend, address=args.address, workers=args.workers)  # fmt: skip
     print((Path(args.out) / "table.md").read_text())
     return 0 if payload else 1
+
+
+def _check_workers(args: argparse.Namespace) -> None:
+    if args.workers is not None and (args.backend != "ray" or args.address is not None):
+        raise ConfigError(f"--workers {args.workers} sizes the local Ray cluster of --backend ray (without --address); "
+                          "the local backend evaluates in this process")  # fmt: skip
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers {args.workers} must be >= 1")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

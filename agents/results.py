@@ -149,7 +149,7 @@ def table(results: list[dict], passive_kmh: float | None) -> str:
 
 def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
         settings: ProtocolSettings | None = None, parts: tuple[str, ...] = PARTS, trusted: bool = False,
-        backend: str = "local", address: str | None = None) -> dict:  # fmt: skip
+        backend: str = "local", address: str | None = None, workers: int | None = None) -> dict:  # fmt: skip
     """Evaluate ``policies`` into ``out``; ``trusted`` allows policy paths (an SB3 model file is code).
     ``backend="ray"`` evaluates every controller and part as Ray tasks first (finished tasks kept in
     ``out/chunks``, so a rerun resumes); the figures and the table are made here as locally."""
@@ -171,7 +171,7 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
         todo = [spec for spec in dict.fromkeys(policies) if spec not in done]
         for spec in todo:
             load_policy(spec, env_config, trusted)  # a bad name or path fails before any task starts
-        distributed = dict(zip(todo, evaluate_many(todo, env_config, settings, parts, backend, address,
+        distributed = dict(zip(todo, evaluate_many(todo, env_config, settings, parts, backend, address, workers,
                                                    store_dir=out / "chunks", trusted=trusted)))  # fmt: skip
     passive_trace = ramp_trace(load_policy("passive", env_config), env_config, seed)
     results = []
