@@ -1,0 +1,713 @@
+"""Stability margins of any controller in the hunting loop, learned or not.
+
+The closed loop is linearised at a fixed speed on straight, perfect track, about its
+equilibrium, and analysed as the discrete-time system it is: the env applies one action per
+control interval ``dt`` (10 ms) and holds it (zero-order hold) into the actuators' first-order
+lag. The linear model is exact for that sampled loop; no Padé approximation is needed, because
+the existing command delay is a whole number of intervals (a shift register).
+
+Pieces (all discrete at ``dt``):
+
+- **Plant** (:func:`plant_model`): the bogie's exact Jacobian at the equilibrium
+  (:meth:`BogieModel.jacobian`), its input matrix, the channel-to-generalised-force map
+  (wheelset torques react on the frame), the actuators' lags ``dF/dt = w (u F_max - F)``,
+  discretised exactly with the block exponential; then the command delay (``delay_steps``) and
+  the env's observation (sensors or full state, with the env's scalings).
+- **Controller** (:func:`controller_model`): a discrete state space ``c+ = Ac c + Bc y``,
+  ``u = Cc c + Dc y`` from the observation ``y`` to the normalised command ``u``. Skyhook, LQR
+  and LQG from their own matrices (LQG with its Kalman filter states); SB3 policies by the
+  derivative of the deterministic action through the VecNormalize scaling and clipping (torch
+  autograd, checked against finite differences); any other stateless policy by finite
+  differences of ``act``.
+- **Margins** (:func:`loop_margins`): loop at a time, broken at each actuator command with the
+  other loops closed: upper and lower gain margin, phase margin, delay margin, disk margin; and
+  the disk margin for simultaneous perturbations of all loops. python-control computes them
+  (``stability_margins`` on the frequency response up to the Nyquist frequency,
+  ``disk_margins``).
+
+Conventions: a loop's gain margin is the factor by which its command may be scaled before the
+loop goes unstable (``gain_margin`` above 1, ``gain_margin_lower`` below 1; 0 when any gain down
+to zero is stable). The delay margin is the extra pure delay (s), beyond the delay already in
+the loop, at which the loop goes unstable: the least ``phase margin / crossover frequency`` over
+the gain crossovers. Margins are meaningful only when the nominal closed loop is stable
+(``closed_loop_stable``); otherwise they are reported as None.
+
+:func:`simulate_loop` is the nonlinear oracle: the same controller on the compiled nonlinear
+bogie, with per-loop gain factors and extra delays (to a fraction of ``dt``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.linalg import expm
+
+from bogie_env.dynamics import N_INPUTS, N_STATES, BogieModel, state_index
+from bogie_env.envs import kernel as K
+from bogie_env.envs.config import CHANNELS, make_config, merge_config
+from bogie_env.envs.core import STATE_SCALES
+from bogie_env.params import ConfigError, load_params
+from bogie_env.stability import KMH
+
+#: Generalised forces per unit channel force: Q = (u0, u1 - u2 - u3, u2, u3).
+CHANNEL_TO_GENERALISED = np.array([[1, 0, 0, 0], [0, 1, -1, -1], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+#: The speeds of the margins table, km/h.
+DEFAULT_SPEEDS_KMH = (300.0, 350.0, 400.0, 450.0, 500.0)
+
+
+# =============================================================================================
+# Plant: bogie + actuators + delay + sensors, discrete at dt
+# =============================================================================================
+
+
+@dataclass
+class PlantModel:
+    """The sampled plant from the normalised command u (n_act) to the observation y.
+
+    State ``[x (20), F (n_act), u_{n-1}, ..., u_{n-d}]``; ``y_n = C s_n`` (no feedthrough:
+    the observation of step n is taken at the end of the previous interval).
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    dt: float
+    speed: float  # m/s
+    x_eq: np.ndarray  # (20,) equilibrium state
+    force_eq: np.ndarray  # (n_act,) equilibrium channel forces
+    active: list[int]
+    max_force: np.ndarray
+    bandwidth: np.ndarray  # rad/s
+    delay_steps: int
+    observation_type: str
+    include_actuators: bool
+    model: BogieModel = field(repr=False)
+
+    @property
+    def n_act(self) -> int:
+        return len(self.active)
+
+    @property
+    def channel_names(self) -> list[str]:
+        return [CHANNELS[k] for k in self.active]
+
+
+def _active_channels(config: dict) -> list[int]:
+    active = [k for k, name in enumerate(CHANNELS) if config["actuators"][name]["mode"] != "off"]
+    for k in active:
+        if config["actuators"][CHANNELS[k]]["mode"] != "force":
+            raise ConfigError(
+                f"margins: actuators.{CHANNELS[k]}.mode = {config['actuators'][CHANNELS[k]]['mode']!r} is not supported; "
+                "allowed: 'force' or 'off' (a semi-active damper's command has zero small-signal gain at rest)"
+            )
+    return active
+
+
+def _delay_steps(config: dict, active: list[int]) -> int:
+    delays = {config["actuators"][CHANNELS[k]]["delay_steps"] for k in active}
+    if len(delays) > 1:
+        raise ConfigError(f"margins: all active channels must share one delay_steps; got {sorted(delays)}")
+    return delays.pop() if delays else 0
+
+
+def observe(x: np.ndarray, force: np.ndarray, speed: float, plant_config: dict, model: BogieModel) -> np.ndarray:
+    """The env's observation (N, n_obs) from states (N, 20) and active-channel forces (N, n_act).
+
+    The same formulas and scalings as the compiled env (``bogie_env.envs.kernel._observe``),
+    in float64 and unclipped.
+    """
+    active = _active_channels(plant_config)
+    x = np.atleast_2d(x)
+    force = np.atleast_2d(force)
+    n = x.shape[0]
+    max_force = np.array([plant_config["actuators"][CHANNELS[k]]["max_force"] for k in active])
+    columns = []
+    if plant_config["observation"]["type"] == "state":
+        columns.append(x / STATE_SCALES)
+    else:
+        u4 = np.zeros((n, N_INPUTS))
+        u4[:, active] = force
+        accel = model.rhs(x, speed, inputs=u4 @ CHANNEL_TO_GENERALISED.T)[:, state_index("dyb")]
+        L1, delta = model.params.L1, model.params.delta
+        psib = x[:, state_index("psib")]
+        yb = x[:, state_index("yb")]
+        columns.append(np.stack([
+            accel / K.ACCEL_SCALE,
+            x[:, state_index("dpsib")] / K.YAW_RATE_SCALE,
+            (x[:, state_index("y1")] - yb - L1 * psib) / delta,
+            (x[:, state_index("y2")] - yb + L1 * psib) / delta,
+            (x[:, state_index("psi1")] - psib) / K.REL_YAW_SCALE,
+            (x[:, state_index("psi2")] - psib) / K.REL_YAW_SCALE,
+        ], axis=1))  # fmt: skip
+    columns.append(np.full((n, 1), (speed * KMH - K.SPEED_CENTRE_KMH) / K.SPEED_SCALE_KMH))
+    if plant_config["observation"]["include_actuators"]:
+        columns.append(force / max_force)
+    return np.concatenate(columns, axis=1)
+
+
+def _observation_jacobian(x_eq, force_eq, speed, config, model) -> np.ndarray:
+    """d(observation)/d[x, F] at the operating point: exact (the observation is linear in x and
+    F except the acceleration, whose row is the Jacobian's dyb row)."""
+    active = _active_channels(config)
+    n_act = len(active)
+    y0 = observe(x_eq[None], force_eq[None], speed, config, model)[0]
+    jac = np.zeros((y0.size, N_STATES + n_act))
+    # every entry but the acceleration is linear; one unit step per column is exact for them
+    for j in range(N_STATES + n_act):
+        dx = np.zeros(N_STATES + n_act)
+        dx[j] = 1.0
+        jac[:, j] = observe((x_eq + dx[:N_STATES])[None], (force_eq + dx[N_STATES:])[None], speed, config, model)[0] - y0
+    if config["observation"]["type"] != "state":
+        u4 = np.zeros(N_INPUTS)
+        u4[active] = force_eq
+        q = CHANNEL_TO_GENERALISED @ u4
+        j_x = model.jacobian(x_eq, speed, inputs=q)
+        b_u = model.input_matrix() @ CHANNEL_TO_GENERALISED[:, active]
+        row = state_index("dyb")
+        jac[0, :N_STATES] = j_x[row] / K.ACCEL_SCALE
+        jac[0, N_STATES:] = b_u[row] / K.ACCEL_SCALE
+    return jac
+
+
+def discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation (block exponential)."""
+    n, m = b.shape
+    block = np.zeros((n + m, n + m))
+    block[:n, :n] = a
+    block[:n, n:] = b
+    e = expm(block * dt)
+    return e[:n, :n], e[:n, n:]
+
+
+def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = None,
+                x_eq: np.ndarray | None = None, model: BogieModel | None = None) -> PlantModel:  # fmt: skip
+    """The sampled plant at ``speed_kmh`` about ``(x_eq, force_eq)`` (default: the passive
+    equilibrium with zero forces)."""
+    active = _active_channels(config)
+    if not active:
+        raise ConfigError("margins: no active actuator channel; every actuators.*.mode is 'off'")
+    if model is None:
+        params = load_params(config["bogie"], [f"{k}={v}" for k, v in config["bogie_overrides"].items()])
+        model = BogieModel(params)
+    speed = speed_kmh / KMH
+    n_act = len(active)
+    max_force = np.array([config["actuators"][CHANNELS[k]]["max_force"] for k in active])
+    bandwidth = np.array([2 * math.pi * config["actuators"][CHANNELS[k]]["bandwidth_hz"] for k in active])
+    force_eq = np.zeros(n_act) if force_eq is None else np.asarray(force_eq, dtype=float)
+    if x_eq is None:
+        u4 = np.zeros(N_INPUTS)
+        u4[active] = force_eq
+        x_eq = model.equilibrium(speed, inputs=CHANNEL_TO_GENERALISED @ u4)
+    u4 = np.zeros(N_INPUTS)
+    u4[active] = force_eq
+    j_x = model.jacobian(x_eq, speed, inputs=CHANNEL_TO_GENERALISED @ u4)
+    b_f = model.input_matrix() @ CHANNEL_TO_GENERALISED[:, active]
+    n = N_STATES + n_act
+    a_c = np.zeros((n, n))
+    a_c[:N_STATES, :N_STATES] = j_x
+    a_c[:N_STATES, N_STATES:] = b_f
+    a_c[N_STATES:, N_STATES:] = -np.diag(bandwidth)
+    b_c = np.zeros((n, n_act))
+    b_c[N_STATES:, :] = np.diag(bandwidth * max_force)
+    ad, bd = discretize(a_c, b_c, config["dt"])
+    d = _delay_steps(config, active)
+    # shift register: the ZOH target is the command of d intervals ago
+    n_all = n + d * n_act
+    a = np.zeros((n_all, n_all))
+    b = np.zeros((n_all, n_act))
+    a[:n, :n] = ad
+    if d == 0:
+        b[:n] = bd
+    else:
+        a[:n, n + (d - 1) * n_act:] = bd
+        b[n:n + n_act] = np.eye(n_act)
+        for i in range(1, d):
+            a[n + i * n_act:n + (i + 1) * n_act, n + (i - 1) * n_act:n + i * n_act] = np.eye(n_act)
+    c_xf = _observation_jacobian(x_eq, force_eq, speed, config, model)
+    c = np.zeros((c_xf.shape[0], n_all))
+    c[:, :n] = c_xf
+    return PlantModel(a, b, c, config["dt"], speed, np.asarray(x_eq, float), force_eq, active, max_force, bandwidth, d,
+                      config["observation"]["type"], bool(config["observation"]["include_actuators"]), model)  # fmt: skip
+
+
+# =============================================================================================
+# Controllers as discrete state spaces
+# =============================================================================================
+
+
+@dataclass
+class ControllerModel:
+    """``c+ = a c + b y``, ``u = c_ c + d y`` (y: observation, u: normalised command)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    method: str  # how it was obtained
+
+    @property
+    def n_states(self) -> int:
+        return self.a.shape[0]
+
+
+def _static(d: np.ndarray, method: str) -> ControllerModel:
+    m, p = d.shape
+    return ControllerModel(np.zeros((0, 0)), np.zeros((0, p)), np.zeros((m, 0)), d, method)
+
+
+def _obs_index(policy, name: str) -> int:
+    return {"accel": 0, "yaw_rate": 1, "rel_yaw1": 4, "rel_yaw2": 5}[name]
+
+
+def skyhook_model(policy, n_obs: int) -> ControllerModel:
+    """Skyhook: a leaky integrator of the frame acceleration and difference quotients of the
+    relative yaws (their previous values are the states)."""
+    from .controllers import SkyhookController
+
+    assert isinstance(policy, SkyhookController)
+    dt, leak = policy.dt, policy.leak
+    m = policy.action_dim
+    # states: frame lateral velocity, previous relative yaw 1 and 2 (SI)
+    a = np.diag([leak, 0.0, 0.0])
+    b = np.zeros((3, n_obs))
+    b[0, 0] = dt * K.ACCEL_SCALE
+    b[1, 4] = K.REL_YAW_SCALE
+    b[2, 5] = K.REL_YAW_SCALE
+    # rates as functions of (state, y)
+    rate_c = np.zeros((4, 3))
+    rate_d = np.zeros((4, n_obs))
+    rate_c[0, 0], rate_d[0, 0] = leak, dt * K.ACCEL_SCALE
+    rate_d[1, 1] = K.YAW_RATE_SCALE
+    for i, col in ((2, 4), (3, 5)):
+        rate_c[i, i - 1] = -1.0 / dt
+        rate_d[i, col] = K.REL_YAW_SCALE / dt
+        rate_d[i, 1] = K.YAW_RATE_SCALE
+    c = np.zeros((m, 3))
+    d = np.zeros((m, n_obs))
+    for j, k in enumerate(policy.active):
+        c[j] = -policy.gains[k] * rate_c[k] / policy.max_force[j]
+        d[j] = -policy.gains[k] * rate_d[k] / policy.max_force[j]
+    return ControllerModel(a, b, c, d, "skyhook matrices")
+
+
+def lqr_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
+    """LQR: u = -K [x_lat; F_hat], with F_hat the controller's replica of the actuator lag."""
+    from bogie_env.dynamics import LATERAL_STATES
+
+    gain = policy.gain_at(np.array([speed_kmh]))[0]
+    lat = list(LATERAL_STATES)
+    n_lat, m = len(lat), policy.n_act
+    select = np.zeros((n_lat, n_obs))  # x_lat from the state observation
+    for i, s in enumerate(lat):
+        select[i, s] = STATE_SCALES[s]
+    kx, kf = gain[:, :n_lat], gain[:, n_lat:]
+    w = np.exp(-policy.bandwidth * policy.dt)
+    g = np.diag((1 - w) * policy.max_force)
+    d = -kx @ select
+    c = -kf
+    a = np.diag(w) + g @ c
+    b = g @ d
+    return ControllerModel(a, b, c, d, "LQR gains (interpolated at the speed)")
+
+
+def lqg_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
+    """LQG: the Kalman filter's estimate and the last command are the states."""
+    v = np.array([speed_kmh])
+    ad, bd = policy._interp(policy.ads, v)[0], policy._interp(policy.bds, v)[0]
+    cd, kal = policy._interp(policy.cds, v)[0], policy._interp(policy.kalmans, v)[0]
+    _, dmeas = policy.measurement_matrix(speed_kmh / KMH)
+    gain = policy.gain_at(v)[0]
+    n_aug, m = ad.shape[0], policy.n_act
+    s6 = np.zeros((6, n_obs))
+    s6[:, :6] = np.eye(6)
+    mm = np.eye(n_aug) - kal @ cd
+    e_e, e_l, e_y = mm @ ad, mm @ bd - kal @ dmeas, kal @ s6
+    a = np.block([[e_e, e_l], [-gain @ e_e, -gain @ e_l]])
+    b = np.vstack([e_y, -gain @ e_y])
+    c = np.hstack([-gain @ e_e, -gain @ e_l])
+    d = -gain @ e_y
+    assert a.shape == (n_aug + m, n_aug + m)
+    return ControllerModel(a, b, c, d, "LQG gains and Kalman filter (interpolated at the speed)")
+
+
+def sb3_jacobian_autograd(policy, y0: np.ndarray) -> np.ndarray:
+    """d(action)/d(observation) of an SB3 policy through the VecNormalize scaling and clipping,
+    by torch autograd on the deterministic action (clipped to the action box as ``predict`` does)."""
+    import torch
+
+    net = policy.model.policy
+    mean = torch.as_tensor(policy.obs_mean if policy.obs_mean is not None else np.zeros_like(y0), dtype=torch.float32)
+    var = torch.as_tensor(policy.obs_var if policy.obs_var is not None else np.ones_like(y0), dtype=torch.float32)
+    eps = policy.epsilon if policy.obs_mean is not None else 0.0
+    clip = policy.clip_obs if policy.obs_mean is not None else np.inf
+
+    def action(y: torch.Tensor) -> torch.Tensor:
+        z = torch.clamp((y - mean) / torch.sqrt(var + eps), -clip, clip)
+        return torch.clamp(net._predict(z[None], deterministic=True)[0], -1.0, 1.0)
+
+    y = torch.as_tensor(np.asarray(y0, dtype=np.float32))
+    jac = torch.autograd.functional.jacobian(action, y)
+    return jac.detach().double().numpy()
+
+
+def finite_difference_jacobian(policy, y0: np.ndarray, step: float = 1e-3) -> np.ndarray:
+    """Central differences of ``policy.act`` at ``y0`` (a stateless policy); ``step`` in the
+    observation's scaled units (float32 policies need about 1e-3)."""
+    y0 = np.asarray(y0, dtype=np.float64)
+    n = y0.size
+    probes = np.repeat(y0[None], 2 * n, axis=0)
+    probes[np.arange(n), np.arange(n)] += step
+    probes[n + np.arange(n), np.arange(n)] -= step
+    policy.reset(2 * n)
+    out = np.asarray(policy.act(probes.astype(np.float32)), dtype=np.float64)
+    return ((out[:n] - out[n:]) / (2 * step)).T
+
+
+def controller_model(policy, n_obs: int, speed_kmh: float, y0: np.ndarray) -> ControllerModel:
+    """The controller's linear model at the operating observation ``y0``."""
+    from .controllers import LQGController, LQRController, PassiveController, SkyhookController
+
+    if isinstance(policy, PassiveController):
+        return _static(np.zeros((policy.action_dim, n_obs)), "zero (passive)")
+    if isinstance(policy, SkyhookController):
+        return skyhook_model(policy, n_obs)
+    if isinstance(policy, LQGController):
+        return lqg_model(policy, n_obs, speed_kmh)
+    if isinstance(policy, LQRController):
+        return lqr_model(policy, n_obs, speed_kmh)
+    if hasattr(policy, "model") and hasattr(getattr(policy.model, "policy", None), "_predict"):
+        return _static(sb3_jacobian_autograd(policy, y0), "SB3 policy, torch autograd through VecNormalize")
+    return _static(finite_difference_jacobian(policy, y0), "finite differences of act (assumed stateless)")
+
+
+def check_controller_model(policy, ctrl: ControllerModel, y0: np.ndarray, u0: np.ndarray, steps: int = 8,
+                           amplitude: float = 1e-3, seed: int = 0) -> float:  # fmt: skip
+    """Largest deviation between ``policy.act`` and the linear model on a small random
+    observation sequence about ``y0`` (relative to the linear response's size)."""
+    rng = np.random.default_rng(seed)
+    dy = amplitude * rng.standard_normal((steps, y0.size))
+    policy.reset(1)
+    c = np.zeros(ctrl.n_states)
+    worst, scale = 0.0, 1e-12
+    for n in range(steps):
+        y = y0 + dy[n]
+        u = np.asarray(policy.act(y[None].astype(np.float32)), dtype=float)[0] - u0
+        u_lin = ctrl.c @ c + ctrl.d @ dy[n]
+        c = ctrl.a @ c + ctrl.b @ dy[n]
+        worst = max(worst, float(np.max(np.abs(u - u_lin))))
+        scale = max(scale, float(np.max(np.abs(u_lin))))
+    return worst / scale
+
+
+# =============================================================================================
+# Operating point and the closed loop
+# =============================================================================================
+
+
+def policy_config(env_config: dict, policy) -> dict:
+    """The env config the policy runs in (its observation type)."""
+    return merge_config(env_config, {"observation": {"type": getattr(policy, "observation_type", "sensors")}})
+
+
+def operating_point(policy, config: dict, speed_kmh: float, model: BogieModel,
+                    tol: float = 1e-12, max_iter: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The closed loop's equilibrium ``(x, F, u)`` at a fixed speed on perfect track.
+
+    Linear controllers command zero at rest; a learned policy may not (a bias), so its
+    equilibrium is solved by Newton's method on ``f(x, G F) = 0, F = F_max u(y(x, F))``.
+    """
+    active = _active_channels(config)
+    n_act = len(active)
+    speed = speed_kmh / KMH
+    max_force = np.array([config["actuators"][CHANNELS[k]]["max_force"] for k in active])
+    x = model.equilibrium(speed)
+    force = np.zeros(n_act)
+
+    def command(x, force):
+        y = observe(x[None], force[None], speed, config, model)
+        policy.reset(1)
+        return np.asarray(policy.act(y.astype(np.float32)), dtype=float)[0], y[0]
+
+    u, y = command(x, force)
+    if np.max(np.abs(u)) < 1e-9:  # linear controllers: zero up to rounding of the zero lateral states
+        return x, force, np.zeros(n_act)
+    b_f = model.input_matrix() @ CHANNEL_TO_GENERALISED[:, active]
+    for _ in range(max_iter):
+        u4 = np.zeros(N_INPUTS)
+        u4[active] = force
+        q = CHANNEL_TO_GENERALISED @ u4
+        f = model.rhs(x, speed, inputs=q)
+        g = force - max_force * u
+        residual = np.concatenate([f, g])
+        ctrl = controller_model(policy, y.size, speed_kmh, y)
+        if ctrl.n_states:
+            raise ConfigError("margins: a dynamic controller with a non-zero command at rest is not supported")
+        c_xf = _observation_jacobian(x, force, speed, config, model)
+        jac = np.zeros((N_STATES + n_act, N_STATES + n_act))
+        jac[:N_STATES, :N_STATES] = model.jacobian(x, speed, inputs=q)
+        jac[:N_STATES, N_STATES:] = b_f
+        jac[N_STATES:] = -np.diag(max_force) @ ctrl.d @ c_xf
+        jac[N_STATES:, N_STATES:] += np.eye(n_act)
+        step = np.linalg.lstsq(jac, -residual, rcond=None)[0]
+        x, force = x + step[:N_STATES], force + step[N_STATES:]
+        u, y = command(x, force)
+        if np.max(np.abs(step[:N_STATES])) < tol and np.max(np.abs(step[N_STATES:])) < 1e-6:
+            break
+    return x, force, u
+
+
+@dataclass
+class LinearLoop:
+    """Plant and controller at one speed, with helpers for the closed loop and broken loops."""
+
+    plant: PlantModel
+    ctrl: ControllerModel
+    speed_kmh: float
+    u_eq: np.ndarray
+
+    @property
+    def dt(self) -> float:
+        return self.plant.dt
+
+    def closed_loop_matrix(self, gains: np.ndarray | None = None) -> np.ndarray:
+        """A of the closed loop with each command scaled by ``gains`` (default 1)."""
+        p, k = self.plant, self.ctrl
+        g = np.diag(np.ones(p.n_act) if gains is None else np.asarray(gains, float))
+        top = np.hstack([p.a + p.b @ g @ k.d @ p.c, p.b @ g @ k.c])
+        bottom = np.hstack([k.b @ p.c, k.a])
+        return np.vstack([top, bottom])
+
+    def eigenvalues(self, gains: np.ndarray | None = None) -> np.ndarray:
+        return np.linalg.eigvals(self.closed_loop_matrix(gains))
+
+    def growth_rate(self, gains: np.ndarray | None = None) -> float:
+        """ln|z|max / dt: the slowest decay (negative) or fastest growth (positive), 1/s."""
+        return float(np.log(np.max(np.abs(self.eigenvalues(gains)))) / self.dt)
+
+    def broken_loop(self, k: int):
+        """L_k: loop k broken at its command, the others closed (negative-feedback convention)."""
+        import control
+
+        p, c = self.plant, self.ctrl
+        keep = np.eye(p.n_act)
+        keep[k, k] = 0.0
+        top = np.hstack([p.a + p.b @ keep @ c.d @ p.c, p.b @ keep @ c.c])
+        bottom = np.hstack([c.b @ p.c, c.a])
+        a = np.vstack([top, bottom])
+        b = np.concatenate([p.b[:, k], np.zeros(c.n_states)])[:, None]
+        out = -np.hstack([c.d[k] @ p.c, c.c[k]])[None, :]
+        return control.ss(a, b, out, np.zeros((1, 1)), self.dt)
+
+    def input_loop(self):
+        """The MIMO loop broken at all commands (for the simultaneous disk margin)."""
+        import control
+
+        p, c = self.plant, self.ctrl
+        a = np.block([[p.a, np.zeros((p.a.shape[0], c.n_states))], [c.b @ p.c, c.a]])
+        b = np.vstack([p.b, np.zeros((c.n_states, p.n_act))])
+        out = -np.hstack([c.d @ p.c, c.c])
+        return control.ss(a, b, out, np.zeros((p.n_act, p.n_act)), self.dt)
+
+
+def linear_loop(policy, env_config: dict, speed_kmh: float, model: BogieModel | None = None) -> LinearLoop:
+    """Linearise ``policy`` in the loop at ``speed_kmh`` (nominal bogie of ``env_config``)."""
+    config = policy_config(env_config, policy)
+    if model is None:
+        params = load_params(config["bogie"], [f"{k}={v}" for k, v in config["bogie_overrides"].items()])
+        model = BogieModel(params)
+    x_eq, force_eq, u_eq = operating_point(policy, config, speed_kmh, model)
+    plant = plant_model(config, speed_kmh, force_eq=force_eq, x_eq=x_eq, model=model)
+    y0 = observe(x_eq[None], force_eq[None], speed_kmh / KMH, config, model)[0]
+    if np.any(np.abs(y0) >= K.OBS_BOUND):
+        raise ConfigError(f"margins: the operating observation is clipped at +-{K.OBS_BOUND} ({y0}); no linear model")
+    ctrl = controller_model(policy, y0.size, speed_kmh, y0)
+    if ctrl.d.shape[0] != plant.n_act:
+        raise ConfigError(f"margins: the policy commands {ctrl.d.shape[0]} channels, the env has {plant.n_act} active")
+    policy.reset(1)
+    return LinearLoop(plant, ctrl, speed_kmh, u_eq)
+
+
+# =============================================================================================
+# Margins (python-control)
+# =============================================================================================
+
+
+def frequency_grid(dt: float, n: int = 4000) -> np.ndarray:
+    """Log-spaced frequencies (rad/s) from 0.01 rad/s to just below the Nyquist frequency."""
+    return np.logspace(-2, np.log10(0.9999 * math.pi / dt), n)
+
+
+def _none_if_inf(value: float) -> float | None:
+    return None if not math.isfinite(value) else float(value)
+
+
+def siso_margins(loop, omega: np.ndarray) -> dict[str, Any]:
+    """Margins of one broken loop (a discrete SISO ``control`` system) with a stable closed loop."""
+    import control
+
+    frd = control.frd(loop, omega)
+    gm, pm, _sm, w180, wc, _ws = control.stability_margins(frd, returnall=True)
+    gm, pm, w180, wc = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (gm, pm, w180, wc))
+    upper = gm[gm > 1.0]
+    lower = gm[gm < 1.0]
+    gain_upper = float(np.min(upper)) if upper.size else math.inf
+    gain_lower = float(np.max(lower)) if lower.size else 0.0
+    # delay margin: extra phase lag that brings each gain crossover onto -1, over its frequency
+    delays = [np.deg2rad(np.remainder(p, 360.0)) / w for p, w in zip(pm, wc) if w > 0]
+    delay = float(min(delays)) if delays else math.inf
+    k_pm = int(np.argmin(np.abs(pm))) if pm.size else -1
+    dm, dgm, dpm = control.disk_margins(loop, omega, skew=0.0)
+    return {
+        "gain_margin": _none_if_inf(gain_upper),
+        "gain_margin_lower": gain_lower,
+        "gain_margin_db": _none_if_inf(20 * math.log10(gain_upper)) if gain_upper > 0 else None,
+        "phase_margin_deg": None if k_pm < 0 else float(pm[k_pm]),
+        "crossover_hz": None if k_pm < 0 else float(wc[k_pm] / (2 * math.pi)),
+        "delay_margin_s": _none_if_inf(delay),
+        "disk_margin": _none_if_inf(float(dm)),
+        "disk_gain_margin_db": _none_if_inf(float(dgm)),
+        "disk_phase_margin_deg": _none_if_inf(float(dpm)),
+    }
+
+
+def loop_margins(loop: LinearLoop, omega: np.ndarray | None = None) -> dict[str, Any]:
+    """Margins of every actuator loop and the simultaneous disk margin, at one speed."""
+    import control
+
+    omega = frequency_grid(loop.dt) if omega is None else omega
+    eig = loop.eigenvalues()
+    radius = float(np.max(np.abs(eig)))
+    stable = radius < 1.0
+    out: dict[str, Any] = {
+        "speed_kmh": loop.speed_kmh,
+        "closed_loop_stable": bool(stable),
+        "closed_loop_growth_rate_per_s": math.log(radius) / loop.dt,
+        "existing_delay_s": loop.plant.delay_steps * loop.dt,
+        "controller_model": loop.ctrl.method,
+        "command_at_rest": [float(v) for v in loop.u_eq],
+        "loops": {},
+    }
+    if not stable:
+        out["loops"] = {name: None for name in loop.plant.channel_names}
+        out["simultaneous_disk_margin"] = None
+        out["gain_margin"] = out["delay_margin_s"] = None
+        return out
+    for k, name in enumerate(loop.plant.channel_names):
+        out["loops"][name] = siso_margins(loop.broken_loop(k), omega)
+    dm, dgm, dpm = control.disk_margins(loop.input_loop(), omega, skew=0.0)
+    out["simultaneous_disk_margin"] = {"disk_margin": _none_if_inf(float(dm)), "disk_gain_margin_db": _none_if_inf(float(dgm)),
+                                       "disk_phase_margin_deg": _none_if_inf(float(dpm))}  # fmt: skip
+    gms = [v["gain_margin"] for v in out["loops"].values() if v["gain_margin"] is not None]
+    dms = [v["delay_margin_s"] for v in out["loops"].values() if v["delay_margin_s"] is not None]
+    out["gain_margin"] = min(gms) if gms else None  # worst loop; None: unbounded
+    out["delay_margin_s"] = min(dms) if dms else None
+    return out
+
+
+def margins_table(policy, env_config: dict, speeds_kmh=DEFAULT_SPEEDS_KMH) -> dict[str, Any]:
+    """The ``margins`` entry: per speed and per loop, and the worst case over the speeds.
+
+    Worst case: the least gain and delay margins over speeds and loops; None when the nominal
+    loop is unstable at some speed (``unstable_at_kmh`` lists where).
+    """
+    config = policy_config(env_config, policy)
+    params = load_params(config["bogie"], [f"{k}={v}" for k, v in config["bogie_overrides"].items()])
+    model = BogieModel(params)
+    per_speed = [loop_margins(linear_loop(policy, env_config, float(v), model=model)) for v in speeds_kmh]
+    unstable = [r["speed_kmh"] for r in per_speed if not r["closed_loop_stable"]]
+
+    def worst(key):
+        if unstable:
+            return None
+        values = [r[key] for r in per_speed if r[key] is not None]
+        return min(values) if values else None  # None everywhere: unbounded
+
+    return {
+        "speeds_kmh": [float(v) for v in speeds_kmh],
+        "dt_s": config["dt"],
+        "model": "discrete at the control rate (exact ZOH + actuator lag + delay shift register)",
+        "gain_margin": worst("gain_margin"),
+        "delay_margin_s": worst("delay_margin_s"),
+        "unstable_at_kmh": unstable,
+        "by_speed": per_speed,
+    }
+
+
+# =============================================================================================
+# The nonlinear oracle
+# =============================================================================================
+
+
+def simulate_loop(policy, env_config: dict, speed_kmh: float, x0: np.ndarray, force0: np.ndarray, u0: np.ndarray,
+                  duration_s: float, gains: np.ndarray | None = None, extra_delay_s: np.ndarray | float = 0.0,
+                  substeps: int = 20, model: BogieModel | None = None) -> dict[str, np.ndarray]:  # fmt: skip
+    """Run the policy on the nonlinear bogie at a fixed speed on perfect track.
+
+    Rows: ``x0`` (N, 20) start states, all with channel forces ``force0`` and a command history
+    ``u0`` (the operating point). ``gains`` (N, n_act) scale each row's commands;
+    ``extra_delay_s`` (N,) or (N, n_act) delays them beyond the env's delay, rounded to
+    ``dt / substeps``. The physics is the compiled RK4 kernel of :class:`BatchSimulator`, at
+    ``dt / substeps`` (finer than the env's step, so it does not damp the fast modes); no
+    saturation. Returns ``t`` (steps,), ``x`` (steps, N, 20) at the control instants.
+    """
+    from bogie_env.simulator import BatchSimulator
+
+    config = policy_config(env_config, policy)
+    active = _active_channels(config)
+    if model is None:
+        params = load_params(config["bogie"], [f"{k}={v}" for k, v in config["bogie_overrides"].items()])
+        model = BogieModel(params)
+    x0 = np.atleast_2d(np.asarray(x0, float))
+    n, n_act = x0.shape[0], len(active)
+    dt = config["dt"]
+    speed = speed_kmh / KMH
+    gains = np.ones((n, n_act)) if gains is None else np.broadcast_to(np.asarray(gains, float), (n, n_act))
+    d_env = _delay_steps(config, active)
+    extra = np.asarray(extra_delay_s, float)
+    extra = extra.reshape(-1, 1) if extra.ndim == 1 else extra
+    if np.any(~np.isfinite(extra)) or np.any(extra < 0):
+        raise ValueError(f"simulate_loop: extra_delay_s = {extra_delay_s!r} must be finite and >= 0")
+    lag = np.broadcast_to(np.rint(extra * substeps / dt).astype(int), (n, n_act)) + d_env * substeps  # substeps
+    max_force = np.array([config["actuators"][CHANNELS[k]]["max_force"] for k in active])
+    tau = np.zeros(N_INPUTS)
+    tau[active] = 1.0 / (2 * math.pi * np.array([config["actuators"][CHANNELS[k]]["bandwidth_hz"] for k in active]))
+    sim = BatchSimulator(model, n, dt=dt / substeps, speed_range=(speed, speed), lag_tau=tau)
+    sim.set_rows(slice(None), x0, speed)
+    sim.force[:, active] = force0
+    sim.channel_output[:, active] = force0
+    n_steps = int(round(duration_s / dt))
+    max_lag = int(lag.max())
+    history = np.empty((n_steps + max_lag // substeps + 2, n, n_act))  # commands per control step
+    policy.reset(n)
+    xs = np.empty((n_steps + 1, n, N_STATES))
+    xs[0] = sim.x
+    target = np.zeros((n, N_INPUTS))
+    rows = np.arange(n)[:, None]
+    for step in range(n_steps):
+        y = observe(sim.x, sim.channel_output[:, active], speed, config, model)
+        y = np.clip(y, -K.OBS_BOUND, K.OBS_BOUND).astype(np.float32)
+        history[step] = np.asarray(policy.act(y), dtype=float)
+        for j in range(substeps):
+            s = step * substeps + j - lag  # substep index the command was issued at
+            m = np.floor_divide(s, substeps)
+            cmd = np.where(m >= 0, history[np.maximum(m, 0), rows, np.arange(n_act)[None, :]], u0[None, :])
+            target[:, active] = np.clip(gains * (cmd - u0) + u0, -1.0, 1.0) * max_force
+            sim.step(force_target=target)
+        if np.any(sim.status != 0):
+            xs[step + 1:] = np.nan
+            break
+        xs[step + 1] = sim.x
+    return {"t": np.arange(n_steps + 1) * dt, "x": xs}
+
+
+def envelope_growth_rate(t: np.ndarray, signal: np.ndarray, window_s: float = 0.5) -> float:
+    """Growth rate (1/s) of a signal's envelope: a line through log(max |s|) over windows."""
+    dt = t[1] - t[0]
+    w = max(2, int(round(window_s / dt)))
+    n = (len(t) - 1) // w
+    peaks = np.array([np.max(np.abs(signal[i * w:(i + 1) * w])) for i in range(n)])
+    centres = np.array([t[i * w + w // 2] for i in range(n)])
+    return float(np.polyfit(centres, np.log(peaks), 1)[0])
