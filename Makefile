@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	# torch is pinned to the small CPU build (pyproject.toml says why)
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet -e '.[dev,render,agents]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,render,agents,margins]'
 	touch $(STAMP)
 
 ## main job: the passive bogie's linear critical speed, then the shipped PPO controller against it

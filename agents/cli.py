@@ -4,10 +4,11 @@
     bogie evaluate --policy passive --policy pretrained --json
     bogie results --policy passive --policy lqr --out results/table
     bogie results ... --backend ray [--address HOST:PORT]       (one Ray task per controller and part)
+    bogie margins --policy lqr --policy pretrained --speeds 300,400,500
     bogie tune --algo ppo --trials 4 --out runs/tune_ppo          (needs the [distributed] extra)
 
 The library stands alone (``python -m bogie_env.cli`` has the analysis commands); this module
-adds train, tune, evaluate and results to the same parser. Training and SB3 policies need the
+adds train, tune, evaluate, results and margins to the same parser. Training and SB3 policies need the
 ``[agents]`` extra; the classical controllers do not.
 """
 
@@ -126,6 +127,46 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             if "ramp" in r:
                 line += f"; ramp reached {r['ramp']['mean_reached_kmh']} km/h (hunted {r['ramp']['hunted']}/{len(r['ramp']['seeds'])})"
             print(line)
+    return 0
+
+
+@command("margins", "stability margins of a controller's loop (gain, phase, delay, disk) per speed and actuator")
+@json_option
+@argument("--out", default=None, help="write the JSON result here as well (atomically)")
+@argument("--speeds", default="300,350,400,450,500", help="comma-separated speeds, km/h")
+@argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
+@argument("--policy", action="append", required=True,
+          help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip); repeatable")
+@bogie_options
+def cmd_margins(args: argparse.Namespace) -> int:
+    try:
+        import control  # noqa: F401
+    except ModuleNotFoundError:
+        print("bogie: error: python-control is not installed; it comes with the margins extra: "
+              "pip install 'bogie-env[margins]'", file=sys.stderr)  # fmt: skip
+        return 2
+    from .margins import format_table, margins_table
+    from .policies import load_policy
+
+    env_config = env_config_from_args(args)
+    try:
+        speeds = [float(v) for v in args.speeds.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"--speeds {args.speeds!r} must be comma-separated numbers (km/h)") from None
+    if not speeds:
+        raise ConfigError("--speeds must name at least one speed (km/h)")
+    results = []
+    for spec in args.policy:
+        results.append({"policy": spec, "margins": margins_table(load_policy(spec, env_config), env_config, speeds)})
+    payload = {"policies": results}
+    if args.out:
+        write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
+    if args.json:
+        print_json(payload)
+    else:
+        for r in results:
+            print(f"{r['policy']}:")
+            print(format_table(r["margins"]))
     return 0
 
 
