@@ -708,9 +708,11 @@ def format_table(table: dict[str, Any]) -> str:
         sim = row["simultaneous_disk_margin"] or {"disk_margin": math.nan}  # NaN: slycot missing
         lines.append(f"{row['speed_kmh']:>6g} {'all (disk)':<14} {'':>16} {'':>8} {'':>8} {_fmt(sim['disk_margin'], '.2f'):>6}")
     dm = table["delay_margin_s"]
-    lines.append(f"worst case: gain margin {_fmt(table['gain_margin'], '.3g')}, delay margin "
-                 f"{_fmt(None if dm is None else dm * 1e3, '.1f')} ms"
-                 + (f" (nominal loop unstable at {table['unstable_at_kmh']} km/h)" if table["unstable_at_kmh"] else ""))  # fmt: skip
+    if table["unstable_at_kmh"]:
+        lines.append(f"worst case: none (the nominal loop is unstable at {table['unstable_at_kmh']} km/h)")
+    else:
+        lines.append(f"worst case: gain margin {_fmt(table['gain_margin'], '.3g')}, delay margin "
+                     f"{_fmt(None if dm is None else dm * 1e3, '.1f')} ms")  # fmt: skip
     return "\n".join(lines)
 
 
