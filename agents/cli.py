@@ -135,8 +135,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 @argument("--out", default=None, help="write the JSON result here as well (atomically)")
 @argument("--speeds", default="300,350,400,450,500", help="comma-separated speeds, km/h")
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
+@argument("--trust-policy", action="store_true",
+          help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your rights")
 @argument("--policy", action="append", required=True,
-          help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip); repeatable")
+          help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip, needs --trust-policy); "
+               "repeatable")
 @bogie_options
 def cmd_margins(args: argparse.Namespace) -> int:
     try:
@@ -157,7 +160,7 @@ def cmd_margins(args: argparse.Namespace) -> int:
         raise ConfigError("--speeds must name at least one speed (km/h)")
     results = []
     for spec in args.policy:
-        results.append({"policy": spec, "margins": margins_table(load_policy(spec, env_config), env_config, speeds)})
+        results.append({"policy": spec, "margins": margins_table(load_policy(spec, env_config, args.trust_policy), env_config, speeds)})
     payload = {"policies": results}
     if args.out:
         write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
