@@ -22,7 +22,7 @@ from typing import Sequence
 
 from bogie_env import cli as library_cli
 from bogie_env.analysis.report import write_text_atomic
-from bogie_env.cli import (argument, backend_options, bogie_options, check_backend_args, command, env_config_from_args,
+from bogie_env.cli import (SEED, argument, backend_options, bogie_options, check_backend_args, command, env_config_from_args,
                            json_option, print_json)  # fmt: skip
 from bogie_env.params import ConfigError
 
@@ -74,7 +74,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
 @json_option
 @argument("--out", default=None, help="write the JSON result here as well (atomically)")
 @argument("--parts", default="critical,ramp,effort,robustness", help="which parts of the protocol to run")
-@argument("--seed", type=int, default=0)
+@argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
 @argument("--trust-policy", action="store_true",
           help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your rights; "
@@ -175,7 +175,7 @@ def cmd_margins(args: argparse.Namespace) -> int:
 
 @command("results", "evaluate several controllers; write results.json, table.md and ramp plots")
 @argument("--resume", action="store_true", help="keep controllers already in OUT/results.json")
-@argument("--seed", type=int, default=0)
+@argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--env-config", default=None)
 @argument("--out", required=True, help="output folder, e.g. docs/results")
 @argument("--trust-policy", action="store_true", help="allow loading policy PATHs (an SB3 model file is code)")

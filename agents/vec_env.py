@@ -89,24 +89,63 @@ class BogieHuntingSB3VecEnv(VecEnv):
     def close(self) -> None:
         pass
 
-    # ---- the VecEnv interface for attributes of "sub-envs": one task serves them all --------
+    # ---- the VecEnv interface for attributes of "sub-envs" -------------------------------------
+    # One task serves all sub-envs. A sub-env's attributes are the task's (shared) plus any set
+    # per env with set_attr; a task method that takes ``rows`` acts on the indexed sub-envs only.
     def _indices(self, indices) -> list[int]:
         if indices is None:
             return list(range(self.num_envs))
-        if isinstance(indices, int):
-            return [indices]
-        return list(indices)
+        rows = [int(indices)] if isinstance(indices, (int, np.integer)) else [int(i) for i in indices]
+        bad = [i for i in rows if not 0 <= i < self.num_envs]
+        if bad:
+            raise IndexError(f"env indices {bad} out of range for {self.num_envs} environments")
+        return rows
+
+    def _per_env(self) -> list[dict[str, Any]]:
+        if not hasattr(self, "_env_attrs"):
+            self._env_attrs: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        return self._env_attrs
 
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        value = getattr(self, attr_name) if hasattr(self, attr_name) else getattr(self.task, attr_name)
-        return [value for _ in self._indices(indices)]
+        per_env = self._per_env()
+        out = []
+        for i in self._indices(indices):
+            if attr_name in per_env[i]:
+                out.append(per_env[i][attr_name])
+            elif hasattr(self.task, attr_name):
+                out.append(getattr(self.task, attr_name))
+            else:
+                out.append(getattr(self, attr_name))
+        return out
 
     def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-        setattr(self, attr_name, value)
+        """Set an attribute of the indexed sub-envs. A task attribute (shared by all sub-envs) can
+        only be set for all of them at once."""
+        rows = self._indices(indices)
+        if hasattr(self.task, attr_name):
+            if sorted(rows) != list(range(self.num_envs)):
+                raise ValueError(f"{attr_name!r} belongs to the task that all {self.num_envs} sub-envs share; "
+                                 "set it without indices")  # fmt: skip
+            setattr(self.task, attr_name, value)
+            return
+        for i in rows:
+            self._per_env()[i][attr_name] = value
 
     def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
-        method = getattr(self, method_name) if hasattr(self, method_name) else getattr(self.task, method_name)
-        return [method(*method_args, **method_kwargs) for _ in self._indices(indices)]
+        """Call a task method for the indexed sub-envs: once per index with ``rows=[i]`` if it takes
+        ``rows``; otherwise (shared state) only for all sub-envs at once."""
+        import inspect
+
+        rows = self._indices(indices)
+        owner = self.task if hasattr(self.task, method_name) else self
+        method = getattr(owner, method_name)
+        if "rows" in inspect.signature(method).parameters:
+            return [method(*method_args, rows=np.array([i]), **method_kwargs) for i in rows]
+        if sorted(rows) != list(range(self.num_envs)):
+            raise ValueError(f"{method_name!r} acts on all {self.num_envs} sub-envs at once (it takes no rows); "
+                             "call it without indices")  # fmt: skip
+        result = method(*method_args, **method_kwargs)
+        return [result for _ in rows]
 
     def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
         return [False for _ in self._indices(indices)]

@@ -22,6 +22,32 @@ from .params import ConfigError, load_params, parse_assignments
 COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], int], Callable[[argparse.ArgumentParser], None], str]] = {}
 
 
+def bounded(kind: type, low: float, high: float, unit: str = "", low_open: bool = False):
+    """An argparse ``type`` that accepts an int or float in [low, high] (``(low, high]`` if
+    ``low_open``); argparse then reports ``argument --NAME: ...`` with what is allowed."""
+
+    def convert(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        ok = np.isfinite(value) and (value > low if low_open else value >= low) and value <= high
+        if not ok:
+            what, lo, hi = ("an integer", f"{low}", f"{high}") if kind is int else ("a number", f"{low:g}", f"{high:g}")
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not allowed; allowed: {what} in {'(' if low_open else '['}{lo}, {hi}]{' ' + unit if unit else ''}"
+            )
+        return value
+
+    convert.__name__ = kind.__name__  # argparse names the type in some messages
+    return convert
+
+
+SPEED_KMH = bounded(float, 0.0, 1000.0, "km/h", low_open=True)
+SEED = bounded(int, 0, 2**32 - 1)
+WORKERS = bounded(int, 1, 1024)
+
+
 def command(name: str, help_text: str):
     """Register a subcommand: ``func(args) -> exit code`` plus an argument-adder."""
 
@@ -108,13 +134,14 @@ def env_config_from_args(args: argparse.Namespace) -> dict:
 # ---------------------------------------------------------------------------------
 @command("critical-speed", "linear critical speed (km/h), hunting frequency (Hz) and equilibrium")
 @json_option
-@argument("--v-max-kmh", type=float, default=900.0, help="top of the search window (km/h)")
-@argument("--v-min-kmh", type=float, default=50.0, help="bottom of the search window (km/h)")
+@argument("--v-max-kmh", type=SPEED_KMH, default=900.0, help="top of the search window (km/h)")
+@argument("--v-min-kmh", type=SPEED_KMH, default=50.0, help="bottom of the search window (km/h)")
 @bogie_options
 def cmd_critical_speed(args: argparse.Namespace) -> int:
     from .dynamics import BogieModel
     from .stability import critical_speed
 
+    check_range("critical-speed", args.v_min_kmh, args.v_max_kmh)
     params = load_params(args.config, args.overrides)
     model = BogieModel(params)
     result = critical_speed(model, v_min_kmh=args.v_min_kmh, v_max_kmh=args.v_max_kmh)
@@ -149,15 +176,22 @@ def cmd_critical_speed(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------
-def parse_scales(text: str) -> list[float]:
-    """'0.5,1,1.5' -> [0.5, 1.0, 1.5]; an empty list or a bad number is an error."""
+def parse_scales(text: str, option: str = "--scales") -> list[float]:
+    """'0.5,1,1.5' -> [0.5, 1.0, 1.5]; an empty list, a bad number or one <= 0 is an error naming ``option``."""
     items = [item.strip() for item in text.split(",") if item.strip()]
     if not items:
-        raise ConfigError(f"--scales {text!r} is empty; give comma-separated factors > 0, e.g. 0.5,1,1.5")
+        raise ConfigError(f"{option} {text!r} is empty; give comma-separated numbers > 0, e.g. 0.5,1,1.5")
     try:
-        return [float(item) for item in items]
+        values = [float(item) for item in items]
     except ValueError:
-        raise ConfigError(f"--scales {text!r}: every entry must be a number, e.g. 0.5,1,1.5") from None
+        raise ConfigError(f"{option} {text!r}: every entry must be a number, e.g. 0.5,1,1.5") from None
+    if not all(np.isfinite(v) and v > 0 for v in values):
+        raise ConfigError(f"{option} {text!r}: every entry must be a finite number > 0")
+    return values
+
+
+def _kmh(value, digits: int = 1) -> str:
+    return "none found" if value is None or not np.isfinite(value) else f"{value:.{digits}f}"
 
 
 def check_range(name: str, low: float, high: float) -> None:
@@ -174,9 +208,9 @@ def _model(args):
 @command("root-locus", "eigenvalues against speed with the hunting mode tracked (Figs. 7, 8, 10)")
 @json_option
 @argument("--out", default=None, help="write the root-locus figures with this file prefix (PNG)")
-@argument("--n-speeds", type=int, default=301)
-@argument("--v-max-kmh", type=float, default=600.0)
-@argument("--v-min-kmh", type=float, default=300.0)
+@argument("--n-speeds", type=bounded(int, 2, 100_000), default=301, help="speeds in the window")
+@argument("--v-max-kmh", type=SPEED_KMH, default=600.0)
+@argument("--v-min-kmh", type=SPEED_KMH, default=300.0)
 @bogie_options
 def cmd_root_locus(args: argparse.Namespace) -> int:
     from .analysis.root_locus import root_locus
@@ -202,12 +236,13 @@ def cmd_root_locus(args: argparse.Namespace) -> int:
 @command("ramp", "the paper's speed-ramp simulation with frozen eigenvalues (Figs. 9, 11)")
 @json_option
 @argument("--out", default=None, help="folder for the figures")
-@argument("--track-seed", type=int, default=0)
-@argument("--track-rms", type=float, default=1e-6, help="alignment irregularity rms (m): the noise floor")
-@argument("--offset", type=float, default=1e-3, help="initial lateral offset of wheelset 1 (m)")
-@argument("--accel", type=float, default=0.1, help="ramp rate (m/s^2)")
-@argument("--v-end-kmh", type=float, default=600.0)
-@argument("--v-start-kmh", type=float, default=300.0)
+@argument("--track-seed", type=SEED, default=0, help="seed of the track irregularity")
+@argument("--track-rms", type=bounded(float, 0.0, 0.01, "m"), default=1e-6, help="alignment irregularity rms (m): the noise floor")
+@argument("--offset", type=bounded(float, -0.03, 0.03, "m"), default=1e-3,
+          help="initial lateral offset of wheelset 1 (m); the flange clearance is 9 mm")
+@argument("--accel", type=bounded(float, 0.0, 10.0, "m/s^2", low_open=True), default=0.1, help="ramp rate (m/s^2)")
+@argument("--v-end-kmh", type=SPEED_KMH, default=600.0)
+@argument("--v-start-kmh", type=SPEED_KMH, default=300.0)
 @bogie_options
 def cmd_ramp(args: argparse.Namespace) -> int:
     import time
@@ -241,16 +276,16 @@ def cmd_ramp(args: argparse.Namespace) -> int:
 @json_option
 @argument("--out", default=None, help="folder for the figures")
 @argument("--rates", default="5,2,1,0.5,0.2,0.1", help="ramp-down rates, km/h per s")
-@argument("--n-speeds", type=int, default=51)
-@argument("--v-max-kmh", type=float, default=550.0)
-@argument("--v-min-kmh", type=float, default=300.0)
+@argument("--n-speeds", type=bounded(int, 2, 10_000), default=51, help="speeds in the window")
+@argument("--v-max-kmh", type=SPEED_KMH, default=550.0)
+@argument("--v-min-kmh", type=SPEED_KMH, default=300.0)
 @bogie_options
 def cmd_bifurcation(args: argparse.Namespace) -> int:
     from .analysis.bifurcation import bifurcation_diagram, nonlinear_critical_speed
 
     check_range("bifurcation", args.v_min_kmh, args.v_max_kmh)
     model = _model(args)
-    rates = tuple(parse_scales(args.rates))
+    rates = tuple(parse_scales(args.rates, "--rates"))
     nonlinear = nonlinear_critical_speed(model, rates)
     diagram = bifurcation_diagram(model, args.v_min_kmh, args.v_max_kmh, args.n_speeds)
     payload = nonlinear.to_dict()
@@ -266,7 +301,8 @@ def cmd_bifurcation(args: argparse.Namespace) -> int:
         print_json(payload)
     else:
         print(f"linear critical speed      : {nonlinear.linear_critical_speed_kmh:.1f} km/h")
-        print(f"nonlinear (fixed-speed fold): {nonlinear.fixed_speed_kmh} km/h (grid {nonlinear.fixed_speed_step_kmh} km/h)")
+        print(f"nonlinear (fixed-speed fold): {_kmh(nonlinear.fixed_speed_kmh)} km/h "
+              f"(grid {_kmh(nonlinear.fixed_speed_step_kmh, 2)} km/h)")
         print(f"ramp-down extrapolated to 0: {nonlinear.extrapolated_kmh:.2f} km/h")
         for r, c in zip(nonlinear.rates_kmh_per_s, nonlinear.collapse_kmh):
             print(f"  ramp-down {r:5g} km/h/s -> collapse at {c if c is None else round(c, 2)} km/h")
@@ -276,8 +312,8 @@ def cmd_bifurcation(args: argparse.Namespace) -> int:
 @command("sensitivity", "critical speed against one or two parameters, or the whole Section-5 study")
 @json_option
 @argument("--fixed-contact", action="store_true", help="hold the creep coefficients at their nominal values while a parameter varies (the paper does not say which it did; docs/model.md)")
-@argument("--chunk-size", type=int, default=None, help="points per task (default 256)")
-@argument("--workers", type=int, default=None,
+@argument("--chunk-size", type=bounded(int, 1, 10**6), default=None, help="points per task (default 256)")
+@argument("--workers", type=WORKERS, default=None,
           help="local processes, or the CPUs of a local Ray cluster (default: all cores)")
 @argument("--out", default=None,
           help="folder for CSV/JSON/figures (with --all); finished chunks are kept in OUT/chunks, so a rerun resumes")
@@ -348,7 +384,7 @@ def cmd_sensitivity(args: argparse.Namespace) -> int:
 
 
 @command("reproduce", "regenerate every Section 4-5 figure and a markdown report")
-@argument("--workers", type=int, default=None)
+@argument("--workers", type=WORKERS, default=None, help="processes (default: all cores)")
 @argument("--out", required=True, help="output folder")
 @bogie_options
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -360,11 +396,26 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """--help shows every default ("(default: ...)"), except for flags and unset options."""
+
+    def _get_help_string(self, action):
+        default = action.default
+        if default is None or default is False or default == [] or default is argparse.SUPPRESS:
+            return action.help
+        if action.help is None:
+            return "(default: %(default)s)"
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="bogie", description=__doc__.splitlines()[0])
+    from . import __version__
+
+    parser = argparse.ArgumentParser(prog="bogie", description=__doc__.splitlines()[0].replace("``", ""))
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (func, add_arguments, help_text) in COMMANDS.items():
-        sp = sub.add_parser(name, help=help_text, description=help_text)
+        sp = sub.add_parser(name, help=help_text, description=help_text, formatter_class=HelpFormatter)
         add_arguments(sp)
         sp.set_defaults(func=func)
     return parser

@@ -111,8 +111,10 @@ class CriticalSpeed:
             "critical_speed_kmh": None if np.isnan(self.speed) else round(self.speed_kmh, 3),
             "critical_speed_m_per_s": None if np.isnan(self.speed) else self.speed,
             "hunting_frequency_hz": None if np.isnan(self.frequency_hz) else self.frequency_hz,
-            "eigenvalue": [self.eigenvalue.real, self.eigenvalue.imag],
+            "eigenvalue": None if np.isnan(self.eigenvalue) else [self.eigenvalue.real, self.eigenvalue.imag],
             "status": self.status,
+            # no crossing: the answer is "stable over the whole window" (or unstable at its bottom)
+            "stable_over_window": self.status == "stable",
             "search_window_kmh": [self.window[0] * KMH, self.window[1] * KMH],
             "equilibrium": dict(zip(STATE_NAMES, map(float, self.equilibrium))),
         }

@@ -320,3 +320,169 @@ def test_resume_restores_the_evaluation_history(tmp_path):
     restore_evaluations(callback, tmp_path)
     assert callback.best_mean_reward == 6.0
     assert callback.evaluations_timesteps == [1024, 2048] and len(callback.evaluations_results) == 2
+
+
+# ---- env and CLI: absurd input is a named error ------------------------------------------------
+def test_negative_reset_accel_is_rejected():
+    from bogie_env.envs.hunting_env import BogieHuntingEnv
+
+    env = BogieHuntingEnv()
+    with pytest.raises(ConfigError, match=r"reset option 'accel' = -5 is not allowed; allowed: \[0, 10\]"):
+        env.reset(seed=0, options={"accel": -5})
+    with pytest.raises(ConfigError, match="reset option 'accel' = 1e\\+09 is not allowed"):
+        env.reset(seed=0, options={"accel": 1e9})
+
+
+@pytest.mark.parametrize(
+    "config, message",
+    [({"actuators": {"frame_lateral": {"bandwidth_hz": 0}}}, r"'actuators.frame_lateral.bandwidth_hz' = 0 is not allowed; allowed: \(0"),
+     ({"actuators": {"frame_yaw": {"mode": "semi_active", "c_max": 1e8}}}, "c_max' = 100000000.0 is not allowed.*smaller substeps"),
+     ({"randomize": {"lam": [0.5, 100.0]}}, r"'randomize.lam' = \[0.5, 100\]: the scale 100 gives an invalid bogie .*'lam'"),
+     ({"randomize": {"Kpx": [1.0, 50.0]}}, r"'randomize.Kpx' = \[1, 50\]: the scale 50"),
+     ({"speed": {"accel": -5}}, "'speed.accel' = -5 is not allowed")],
+)  # fmt: skip
+def test_env_config_rejected_at_construction(config, message):
+    from bogie_env.envs.hunting_env import BogieHuntingEnv
+
+    with pytest.raises(ConfigError, match=message):
+        BogieHuntingEnv(config=config)
+
+
+def test_num_envs_is_capped():
+    from bogie_env.envs.config import MAX_NUM_ENVS
+    from bogie_env.envs.vector import BogieHuntingVectorEnv
+
+    with pytest.raises(ConfigError, match=f"num_envs = 1000000 is not allowed; allowed: an integer in \\[1, {MAX_NUM_ENVS}\\]"):
+        BogieHuntingVectorEnv(10**6)
+
+
+def test_stepping_before_reset_raises_reset_needed():
+    import gymnasium as gym
+
+    from bogie_env.envs.hunting_env import BogieHuntingEnv
+
+    env = BogieHuntingEnv()
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(env.action_space.sample())
+    env.reset(seed=0)
+    obs, *_ = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+    assert np.all(np.isfinite(obs))
+    vec = gym.make_vec("Bogie/Hunting-v0", num_envs=3, vectorization_mode="vector_entry_point")
+    with pytest.raises(gym.error.ResetNeeded):
+        vec.step(vec.action_space.sample())
+    vec.reset(seed=0, options={"reset_mask": np.array([True, False, True])})
+    with pytest.raises(gym.error.ResetNeeded, match=r"env\(s\) \[1\]"):
+        vec.step(vec.action_space.sample())
+
+
+def test_vector_reset_takes_a_list_of_seeds():
+    import gymnasium as gym
+
+    vec = gym.make_vec("Bogie/Hunting-v0", num_envs=3, vectorization_mode="vector_entry_point")
+    by_list, _ = vec.reset(seed=[5, 7, 5])
+    by_int, _ = vec.reset(seed=5)  # env i gets 5 + i
+    assert np.array_equal(by_list[0], by_list[2]) and np.array_equal(by_list[0], by_int[0])
+    assert np.array_equal(by_list[1], by_int[2])
+    with pytest.raises(ValueError, match="got 2 seeds for 3 environments"):
+        vec.reset(seed=[1, 2])
+
+
+def test_render_fps_is_one_over_dt():
+    import gymnasium as gym
+
+    from bogie_env.envs.hunting_env import BogieHuntingEnv
+
+    assert BogieHuntingEnv().metadata["render_fps"] == 100
+    assert BogieHuntingEnv(config={"dt": 0.02}).metadata["render_fps"] == 50
+    vec = gym.make_vec("Bogie/Hunting-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    assert vec.metadata["render_fps"] == 100
+
+
+def test_sb3_set_attr_and_env_method_honour_indices():
+    from bogie_agents.vec_env import BogieHuntingSB3VecEnv
+
+    venv = BogieHuntingSB3VecEnv(3, seed=0)
+    venv.reset()
+    venv.set_attr("difficulty", 2.0, indices=[1])
+    assert venv.get_attr("difficulty", indices=[1]) == [2.0]
+    with pytest.raises(AttributeError):
+        venv.get_attr("difficulty", indices=[0])
+    assert not hasattr(venv, "difficulty")  # not the VecEnv's own attribute
+    venv.set_attr("config", venv.task.config)  # a task attribute: all sub-envs at once
+    with pytest.raises(ValueError, match="set it without indices"):
+        venv.set_attr("config", {}, indices=[0])
+    before = venv.task.obs.copy()
+    venv.task.sim.x[:] += 1e-3
+    out = venv.env_method("observe", indices=[2])
+    assert len(out) == 1
+    after = venv.task.obs
+    assert np.array_equal(after[:2], before[:2]) and not np.array_equal(after[2], before[2])
+    with pytest.raises(IndexError):
+        venv.env_method("observe", indices=[5])
+
+
+def test_critical_speed_json_reports_a_stable_window(capsys):
+    assert cli_main(["critical-speed", "--json", "--v-max-kmh", "200"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["critical_speed_kmh"] is None and payload["stable_over_window"] is True
+    assert payload["search_window_kmh"] == [50.0, 200.0] and payload["eigenvalue"] is None
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [(["ramp", "--accel", "1e9"], "argument --accel: '1e9' is not allowed; allowed: a number in (0, 10] m/s^2"),
+     (["ramp", "--offset", "10"], "argument --offset: '10' is not allowed"),
+     (["ramp", "--track-rms", "-0.001"], "argument --track-rms: '-0.001' is not allowed"),
+     (["ramp", "--v-start-kmh", "-300"], "argument --v-start-kmh"),
+     (["evaluate", "--policy", "passive", "--seed", "-1"], "argument --seed: '-1' is not allowed"),
+     (["root-locus", "--n-speeds", "1"], "argument --n-speeds"),
+     (["sensitivity", "--param", "Csy", "--workers", "0"], "argument --workers")],
+)  # fmt: skip
+def test_cli_rejects_absurd_numbers_naming_the_option(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli_main(argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [(["bifurcation", "--rates", "1,x"], "--rates '1,x': every entry must be a number"),
+     (["bifurcation", "--rates", "1,-2"], "--rates '1,-2': every entry must be a finite number > 0"),
+     (["sensitivity", "--param", "Csy", "--scales", ""], "--scales '' is empty")],
+)  # fmt: skip
+def test_cli_list_options_are_named(argv, message, capsys):
+    assert cli_main(argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_cli_malformed_yaml_and_out_file_are_clean_errors(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("Csy: [1, 2\n")
+    assert cli_main(["critical-speed", "--config", str(bad)]) == 2
+    assert "is malformed" in capsys.readouterr().err
+    bad.write_text("speed: {accel: 1}\nspeed: {accel: 2}\n")
+    assert cli_main(["evaluate", "--policy", "passive", "--env-config", str(bad)]) == 2
+    assert "duplicate key 'speed'" in capsys.readouterr().err
+    out_file = tmp_path / "taken"
+    out_file.write_text("x")
+    assert cli_main(["results", "--policy", "passive", "--out", str(out_file)]) == 2
+    assert "is an existing file" in capsys.readouterr().err
+    assert cli_main(["ramp", "--v-start-kmh", "300", "--v-end-kmh", "301", "--accel", "10", "--out", str(out_file)]) == 2
+    assert "bogie ramp: error:" in capsys.readouterr().err
+
+
+def test_cli_version_and_help(capsys):
+    with pytest.raises(SystemExit):
+        cli_main(["--version"])
+    from bogie_env import __version__
+
+    assert capsys.readouterr().out.strip() == f"bogie {__version__}"
+    for command in ("ramp", "evaluate", "bifurcation", "sensitivity", "train"):
+        with pytest.raises(SystemExit):
+            cli_main([command, "--help"])
+        text = capsys.readouterr().out
+        assert "``" not in text, command
+    with pytest.raises(SystemExit):
+        cli_main(["evaluate", "--help"])
+    assert "(default: critical,ramp,effort,robustness)" in " ".join(capsys.readouterr().out.split())

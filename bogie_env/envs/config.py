@@ -24,6 +24,13 @@ _ACTUATOR_DEFAULTS = {c.name: dict(c.defaults) for c in ACTUATOR_CHANNELS}
 
 MIN_SPEED_KMH = 30.0  # the env's speed range; above 850 km/h the model is not meant to be used
 MAX_SPEED_KMH = 850.0
+MAX_ACCEL = 10.0  # m/s^2; the speed only ramps up (or stays constant)
+MAX_NUM_ENVS = 65_536  # one task's rows; 10^6 rows take minutes to reset and gigabytes of state
+# Semi-active damping coefficients above this make the damper so stiff that the integrator's stable
+# substep shrinks in proportion: at 1e7 the frame-lateral channel needs ~24 substeps per 10 ms step
+# (2 at the default 1e5), at 1e8 about 235, i.e. ~100x slower. 1e7 (N s/m or N m s/rad) is already
+# far above what reaches the force limits at hunting velocities.
+MAX_DAMPING = 1.0e7
 
 
 def default_config() -> dict[str, Any]:
@@ -117,10 +124,10 @@ def validate(config: dict) -> dict:
     sp = c["speed"]
     sp["start_kmh"] = _number("speed.start_kmh", sp["start_kmh"], MIN_SPEED_KMH, MAX_SPEED_KMH)
     sp["end_kmh"] = _number("speed.end_kmh", sp["end_kmh"], MIN_SPEED_KMH, MAX_SPEED_KMH)
-    sp["accel"] = _number("speed.accel", sp["accel"], 0.0, 10.0)
+    sp["accel"] = _number("speed.accel", sp["accel"], 0.0, MAX_ACCEL)
     for key in ("start_kmh_range", "end_kmh_range"):
         sp[key] = _range(f"speed.{key}", sp[key], MIN_SPEED_KMH, MAX_SPEED_KMH)
-    sp["accel_range"] = _range("speed.accel_range", sp["accel_range"], 0.0, 10.0)
+    sp["accel_range"] = _range("speed.accel_range", sp["accel_range"], 0.0, MAX_ACCEL)
     if sp["end_kmh"] < sp["start_kmh"]:
         raise ConfigError(f"config 'speed.end_kmh' = {sp['end_kmh']:g} must not be below 'speed.start_kmh' = {sp['start_kmh']:g}")
     c["initial_perturbation"] = _number("initial_perturbation", c["initial_perturbation"], 0.0, 0.02)
@@ -144,17 +151,30 @@ def validate(config: dict) -> dict:
         if name not in FIELDS:
             raise ConfigError(f"config 'randomize.{name}': unknown parameter; known parameters: {', '.join(FIELDS)}")
         c["randomize"][name] = _range(f"randomize.{name}", value, 1e-3, 100.0)
+    if c["randomize"]:  # every scale in a range must give a valid bogie, checked now rather than at a reset
+        base = load_params(c["bogie"], c["bogie_overrides"])
+        for name, (low, high) in c["randomize"].items():
+            for scale in (low, high):
+                try:
+                    base.scaled(**{name: scale})
+                except ConfigError as error:
+                    raise ConfigError(f"config 'randomize.{name}' = [{low:g}, {high:g}]: the scale {scale:g} gives an "
+                                      f"invalid bogie ({error})") from None  # fmt: skip
     for name in CHANNELS:
         spec = c["actuators"][name]
         where = f"actuators.{name}"
         if spec["mode"] not in ACTUATOR_MODES:
             raise ConfigError(f"config '{where}.mode' = {spec['mode']!r} is not allowed; allowed: {', '.join(ACTUATOR_MODES)}")
         spec["max_force"] = _number(f"{where}.max_force", spec["max_force"], 0.0, 1e6, low_open=True)
-        spec["c_min"] = _number(f"{where}.c_min", spec["c_min"], 0.0, 1e8)
-        spec["c_max"] = _number(f"{where}.c_max", spec["c_max"], 0.0, 1e8)
+        for key in ("c_min", "c_max"):
+            try:
+                spec[key] = _number(f"{where}.{key}", spec[key], 0.0, MAX_DAMPING)
+            except ConfigError as error:
+                raise ConfigError(f"{error} (a stiffer damper forces the integrator into ever smaller substeps: "
+                                  "1e8 would make the env ~100x slower)") from None  # fmt: skip
         if spec["c_min"] > spec["c_max"]:
             raise ConfigError(f"config '{where}.c_min' must not exceed '{where}.c_max'")
-        spec["bandwidth_hz"] = _number(f"{where}.bandwidth_hz", spec["bandwidth_hz"], 0.0, 1e4)
+        spec["bandwidth_hz"] = _number(f"{where}.bandwidth_hz", spec["bandwidth_hz"], 0.0, 1e4, low_open=True)
         d = spec["delay_steps"]
         if isinstance(d, bool) or not isinstance(d, int) or not 0 <= d <= MAX_DELAY_STEPS:
             raise ConfigError(f"config '{where}.delay_steps' = {d!r} must be an integer in [0, {MAX_DELAY_STEPS}]")

@@ -121,7 +121,7 @@ class BogieHuntingEnv(gym.Env):
     - v0: initial version.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # 1 / dt; set per instance
 
     def __init__(
         self,
@@ -138,8 +138,11 @@ class BogieHuntingEnv(gym.Env):
         self.action_space = self.task.action_space
         self.observation_space = self.task.observation_space
         self.render_mode = render_mode
+        # one frame per step, so a recorded video plays in real time (dt = 0.01 s -> 100 fps)
+        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.task.config["dt"]))}
         self._renderer = None
         self._seeded = False
+        self._needs_reset = True
 
     @property
     def config(self) -> dict:
@@ -155,11 +158,14 @@ class BogieHuntingEnv(gym.Env):
             self._seeded = True
         self.task.reset_rows(np.array([0]), options)
         self._episode_steps = 0
+        self._needs_reset = False
         if self.render_mode == "human":
             self.render()
         return self.task.obs[0].copy(), self.task.info_dict(0)
 
     def step(self, action):
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("call reset() before step(): the env has no episode yet")
         task = self.task
         task.step(action)
         self._episode_steps += 1

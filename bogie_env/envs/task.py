@@ -54,7 +54,7 @@ from ..simulator import (
     use_threads,
 )
 from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, TrackInput, alignment_profile, perfect_track
-from .config import bogie_params, make_config, max_steps_for
+from .config import MAX_ACCEL, MAX_NUM_ENVS, bogie_params, make_config, max_steps_for
 
 KMH = 3.6
 _FLOAT_TYPES = (np.dtype(np.float32), np.dtype(np.float64))
@@ -291,8 +291,9 @@ class HuntingTask:
     """
 
     def __init__(self, num_envs: int, config: Mapping[str, Any] | str | None = None, **overrides: Any) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ConfigError(f"num_envs = {num_envs!r} must be an integer >= 1")
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
+            raise ConfigError(f"num_envs = {num_envs!r} is not allowed; allowed: an integer in [1, {MAX_NUM_ENVS}] "
+                              "(more rows per process only cost memory and reset time; scale out with Ray)")
         self.num_envs = n = int(num_envs)
         self.config = c = make_config(config, **overrides)
         self.base_params: BogieParams = bogie_params(c)
@@ -377,6 +378,9 @@ class HuntingTask:
             start = self._draw(rng, options.get("start_kmh"), sp["start_kmh"], sp["start_kmh_range"], "start_kmh")
             end = self._draw(rng, options.get("end_kmh"), sp["end_kmh"], sp["end_kmh_range"], "end_kmh")
             accel = self._draw(rng, options.get("accel"), sp["accel"], sp["accel_range"], "accel")
+            if not 0.0 <= accel <= MAX_ACCEL:
+                raise ConfigError(f"reset option 'accel' = {accel:g} is not allowed; allowed: [0, {MAX_ACCEL:g}] m/s^2 "
+                                  "(the speed ramps up from start_kmh to end_kmh, or stays constant)")  # fmt: skip
             lo, hi = self.speed_limits()
             if not (lo - 1e-9 <= start / KMH and end / KMH <= hi + 1e-9 and start <= end):
                 raise ConfigError(

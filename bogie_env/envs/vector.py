@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping, Sequence
 
+import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -42,7 +43,7 @@ class BogieHuntingVectorEnv(VectorEnv):
     (default: the configured ramp's length plus 10 %).
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"], "render_fps": 50}
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"], "render_fps": 100}
 
     def __init__(
         self,
@@ -62,16 +63,25 @@ class BogieHuntingVectorEnv(VectorEnv):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r} is not allowed; allowed: {self.metadata['render_modes']}")
         self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.task.config["dt"]))}
         self.max_episode_steps = int(max_episode_steps) if max_episode_steps else self.task.max_episode_steps()
         self._episode_steps = np.zeros(self.num_envs, dtype=np.int64)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._renderer = None
         self._seeded = False
+        self._started = np.zeros(self.num_envs, dtype=bool)  # rows that have had a reset
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: Mapping[str, Any] | None = None):
         """Reset every env, or with ``options={"reset_mask": mask}`` (bool, (num_envs,)) only the
-        masked ones (Gymnasium's convention); the others keep their episodes."""
-        super().reset(seed=seed)
+        masked ones (Gymnasium's convention); the others keep their episodes. ``seed`` is an int
+        (env i gets ``seed + i``), a list of per-env seeds (None: drawn), or None."""
+        if seed is not None and not isinstance(seed, (int, np.integer)):
+            seed = list(seed)
+            if len(seed) != self.num_envs:
+                raise ValueError(f"reset(seed=[...]) got {len(seed)} seeds for {self.num_envs} environments")
+            super().reset(seed=None)  # the per-env list seeds the envs; np_random only fills in None entries
+        else:
+            super().reset(seed=seed)
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         if mask is None:
@@ -90,9 +100,14 @@ class BogieHuntingVectorEnv(VectorEnv):
         self.task.reset_rows(rows, options or None)
         self._episode_steps[rows] = 0
         self._autoreset[rows] = False
+        self._started[rows] = True
         return self.task.obs.copy(), self.task.batched_infos()
 
     def step(self, actions):
+        if not self._started.all():
+            raise gym.error.ResetNeeded(
+                f"call reset() before step(): env(s) {np.nonzero(~self._started)[0].tolist()[:10]} have no episode yet"
+            )
         self.task.step(actions)
         self._episode_steps += 1
         terminated = self.task.terminated
