@@ -13,10 +13,11 @@ Per interval and row: the channel commands pass through their delays
 its end speed; :func:`bogie_env.integrate._advance_row` integrates the interval; the lag
 states, speed, distance and track samples move to the end of the interval.
 
-Thread use: below :data:`PARALLEL_MIN_ROWS` rows the batch runs on the calling thread;
-above, on numba's thread pool, over at most ``num_threads`` threads
-(:func:`set_num_threads`, environment variable ``BOGIE_NUM_THREADS``). A row's arithmetic is
-the same whichever loop runs it, so trajectories do not depend on the batch size or the
+Thread use (:class:`LoopChooser`): below :data:`PARALLEL_MIN_ROWS` rows a batch runs on the
+calling thread; above, on the calling thread or on numba's thread pool of ``num_threads``
+threads (argument, env config key ``num_threads``, environment variable ``BOGIE_NUM_THREADS``;
+default the usable cores), whichever has been faster lately. A row's arithmetic is the same
+whichever loop runs it, so trajectories do not depend on the batch size, the loop or the
 thread count (``tests/test_integrate.py``, ``tests/test_envs.py``).
 """
 
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 
 import numba
 import numpy as np
@@ -65,12 +67,45 @@ def default_num_threads() -> int:
     return max(1, min(cores, numba.config.NUMBA_NUM_THREADS))
 
 
-def use_threads(n_rows: int, num_threads: int) -> bool:
-    """Whether a batch of n_rows runs on the thread pool (and sets the pool's size if so)."""
-    if n_rows < PARALLEL_MIN_ROWS or num_threads <= 1:
-        return False
-    numba.set_num_threads(num_threads)
-    return True
+class LoopChooser:
+    """Runs a batch on the calling thread or on the thread pool, whichever has been faster.
+
+    Below :data:`PARALLEL_MIN_ROWS` rows, or with one thread, always the calling thread. Above,
+    it times its calls and keeps the faster loop, trying the other one every
+    :attr:`PROBE_EVERY` calls: on an idle 2-core host the pool wins at large batches, on a busy
+    one its barriers can make it several times slower than the calling thread. Results do
+    not depend on the choice (a row's arithmetic is the same in both loops).
+    """
+
+    PROBE_EVERY = 100
+
+    def __init__(self, n_rows: int, num_threads: int) -> None:
+        self.num_threads = int(num_threads)
+        self.enabled = n_rows >= PARALLEL_MIN_ROWS and self.num_threads > 1
+        self.seconds = [math.nan, math.nan]  # recent seconds per call: calling thread, pool
+        self.calls = 0
+
+    def run(self, serial, parallel, *args):
+        """``serial(*args)`` or ``parallel(*args)``; returns what it returns."""
+        if not self.enabled:
+            return serial(*args)
+        self.calls += 1
+        untried = [k for k in (0, 1) if math.isnan(self.seconds[k])]
+        best = 1 if self.seconds[1] < self.seconds[0] else 0
+        loop = untried[0] if untried else (1 - best if self.calls % self.PROBE_EVERY == 0 else best)
+        if loop:
+            numba.set_num_threads(self.num_threads)
+        start = time.perf_counter()
+        result = (parallel if loop else serial)(*args)
+        elapsed = time.perf_counter() - start
+        old = self.seconds[loop]
+        self.seconds[loop] = elapsed if math.isnan(old) else 0.7 * old + 0.3 * elapsed
+        return result
+
+    @property
+    def parallel_share(self) -> float:
+        """How the pool compares lately: seconds per call on the pool / on the calling thread."""
+        return self.seconds[1] / self.seconds[0]
 
 
 @njit(cache=True, inline="always")
@@ -119,6 +154,11 @@ def advance_rows(start, stop, rows, channels, track, dt, n_sub):
         m[M_STEPS] = steps + 1
         advance_lag(lag[n], target, weights[3 * n_sub])
         sample_track(track, m[M_DISTANCE], p[P_L1], track_sample[n])
+
+
+@njit(cache=True, fastmath=FASTMATH)
+def _advance_serial(rows, channels, track, dt, n_sub):
+    advance_rows(0, rows[0].shape[0], rows, channels, track, dt, n_sub)
 
 
 @njit(cache=True, fastmath=FASTMATH, parallel=True)
@@ -212,6 +252,7 @@ class BatchSimulator:
             channels[:, CH_DECAY_RATE] = np.where(tau > 0, 1.0 / np.maximum(tau, 1e-300), 0.0)
         self.channels = np.ascontiguousarray(channels, dtype=np.float64)
         self.num_threads = default_num_threads() if num_threads is None else int(num_threads)
+        self.loops = LoopChooser(self.n, self.num_threads)
         n = self.n
         self.x = np.zeros((n, N_STATES))
         self.motion = np.zeros((n, len(MOTION_FIELDS)))
@@ -294,10 +335,7 @@ class BatchSimulator:
     # ---- stepping ----------------------------------------------------------------------------
     def advance(self) -> np.ndarray:
         """Advance every bogie by ``dt`` with the commands in :attr:`command`; returns the status."""
-        if use_threads(self.n, self.num_threads):
-            _advance_parallel(self.rows, self.channels, self._track, self.dt, self.n_sub)
-        else:
-            advance_rows(0, self.n, self.rows, self.channels, self._track, self.dt, self.n_sub)
+        self.loops.run(_advance_serial, _advance_parallel, self.rows, self.channels, self._track, self.dt, self.n_sub)
         return self.status
 
     def step(self, force_target: np.ndarray | None = None, damping_target: np.ndarray | None = None) -> np.ndarray:

@@ -115,6 +115,7 @@ def test_batch_size_does_not_change_a_rows_trajectory():
         large.step(np.tile(a, (n // 4, 1)))
         assert np.array_equal(small.obs, large.obs[:4]) and np.array_equal(small.states, large.states[:4])
         assert np.array_equal(small.states, large.states[n - 4 :])
+    assert not np.isnan(large.loops.seconds).any()  # both loops (calling thread, pool) ran
 
 
 def test_bad_actions_are_errors_or_documented_clipping():

@@ -51,7 +51,7 @@ from ..simulator import (
     BatchSimulator,
     advance_rows,
     chunk_bounds,
-    use_threads,
+    LoopChooser,
 )
 from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, TrackInput, alignment_profile, perfect_track
 from .config import MAX_ACCEL, MAX_NUM_ENVS, bogie_params, make_config, max_steps_for
@@ -270,6 +270,15 @@ def _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg,
 
 
 @njit(cache=True, fastmath=FASTMATH)
+def _step_checked_parallel(action_in, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales):
+    """:func:`_step_serial` with the rows on the thread pool."""
+    bad = _clip_actions(action_in, action)
+    if bad < 0:
+        _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales)
+    return bad
+
+
+@njit(cache=True, fastmath=FASTMATH)
 def _observe_rows(rows, sim_rows, channels, obs, cfg, state_scales):
     """Observations of some rows from their current state (channels at their last output)."""
     x, motion, coefficients, _, _, _, output, track_sample, _ = sim_rows
@@ -327,6 +336,7 @@ class HuntingTask:
         self.n_sub = self.step_choice.n_sub
         self.sim = BatchSimulator(self.model, n, c["dt"], (lo, hi), self.track_input, self.channels, n_sub=self.n_sub,
                                   num_threads=c["num_threads"])  # fmt: skip
+        self.loops = LoopChooser(n, self.sim.num_threads)
         # the task's per-row arrays
         self.episode = np.zeros((n, N_EPISODE))
         self.obs = np.zeros((n, self.observation_dim), dtype=np.float32)
@@ -466,12 +476,7 @@ class HuntingTask:
         sim = self.sim
         args = (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, self.actions, self._task_rows, self.settings,
                 self.state_scales)  # fmt: skip
-        if use_threads(self.num_envs, sim.num_threads):
-            bad = _clip_actions(a, self.actions)
-            if bad < 0:
-                _step_parallel(*args)
-        else:
-            bad = _step_serial(a, *args)
+        bad = self.loops.run(_step_serial, _step_checked_parallel, a, *args)
         if bad >= 0:
             self._raise_non_finite(a, bad)
         if self.config["observation"]["noise"] > 0:
