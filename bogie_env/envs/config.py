@@ -151,6 +151,7 @@ def validate(config: dict) -> dict:
         if name not in FIELDS:
             raise ConfigError(f"config 'randomize.{name}': unknown parameter; known parameters: {', '.join(FIELDS)}")
         c["randomize"][name] = _range(f"randomize.{name}", value, 1e-3, 100.0)
+    c["randomize"] = {name: bounds for name, bounds in c["randomize"].items() if bounds is not None}  # null: not randomised
     if c["randomize"]:  # every scale in a range must give a valid bogie, checked now rather than at a reset
         base = load_params(c["bogie"], c["bogie_overrides"])
         for name, (low, high) in c["randomize"].items():

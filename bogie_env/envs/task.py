@@ -380,6 +380,9 @@ class HuntingTask:
         unknown = set(options) - {"start_kmh", "end_kmh", "accel", "params"}
         if unknown:
             raise ConfigError(f"unknown reset option(s) {sorted(unknown)}; allowed: start_kmh, end_kmh, accel, params")
+        if not isinstance(options.get("params") or {}, Mapping):
+            raise ConfigError(f"reset option 'params' = {options['params']!r} must be a mapping of parameter names "
+                              "to scale factors, e.g. {'Csy': 0.5}")  # fmt: skip
         sp = self.config["speed"]
         alignment = self.track_input.alignment
         rows = np.atleast_1d(rows)
@@ -445,7 +448,14 @@ class HuntingTask:
     # ---- stepping -------------------------------------------------------------------------------
     def _action_array(self, actions: Any) -> np.ndarray:
         """The actions as an (N, action_dim) float array (a view where possible); bad shapes raise."""
-        a = actions if isinstance(actions, np.ndarray) and actions.dtype in _FLOAT_TYPES else np.asarray(actions, dtype=np.float64)
+        if isinstance(actions, np.ndarray) and actions.dtype in _FLOAT_TYPES:
+            a = actions
+        else:
+            try:
+                a = np.asarray(actions, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"action {actions!r:.60} is not an array of numbers; expected shape "
+                                 f"({self.num_envs}, {self.action_dim}) in [-1, 1]") from None  # fmt: skip
         if a.shape != (self.num_envs, self.action_dim):
             if self.num_envs == 1 and a.shape == (self.action_dim,):
                 return a[None, :]
