@@ -41,24 +41,44 @@ def _mark_speeds(ax, linear_kmh: float | None = None, nonlinear_kmh: float | Non
         line(nonlinear_kmh, color="tab:purple", ls="-.", lw=1.2, label=f"nonlinear critical speed {nonlinear_kmh:.1f} km/h")
 
 
+def param_label(name: str) -> str:
+    """An axis label for a bogie parameter: its description, symbol and unit."""
+    from ..params import FIELDS
+
+    spec = FIELDS.get(name)
+    return f"{spec.description} {name} ({spec.unit})" if spec and spec.unit else name
+
+
 def root_locus_figure(locus, path, zoom: bool = False):
-    """Figs. 7/8: eigenvalues in the complex plane from the lowest (triangle) to the highest speed (square)."""
+    """Figs. 7/8: eigenvalues in the complex plane from the lowest (triangle) to the highest speed (square).
+
+    The full view shows the oscillatory modes near the imaginary axis (real part > -60 1/s,
+    frequency < 150 rad/s), cropped to where they are; the zoom shows the hunting mode alone."""
     fig, ax = plt.subplots(figsize=(7, 5))
     ev = locus.eigenvalues
-    for j in range(ev.shape[1]):
+    v0, v1 = locus.speeds_kmh[0], locus.speeds_kmh[-1]
+    shown = [j for j in range(ev.shape[1])
+             if np.any((ev[:, j].real > -60) & (ev[:, j].imag > 0.5) & (ev[:, j].imag < 150))]  # fmt: skip
+    for n, j in enumerate(shown):
         hunting = j == locus.hunting_mode
         ax.plot(ev[:, j].real, ev[:, j].imag, color="tab:blue" if hunting else "0.6", lw=2.0 if hunting else 0.8,
-                zorder=3 if hunting else 1, label="hunting mode" if hunting else None)  # fmt: skip
-        ax.plot(ev[0, j].real, ev[0, j].imag, ">", color="k", ms=4)
-        ax.plot(ev[-1, j].real, ev[-1, j].imag, "s", mfc="none", color="k", ms=4)
-    ax.axvline(0.0, color="tab:red", lw=1)
+                zorder=3 if hunting else 1,
+                label="hunting mode" if hunting else ("other modes" if n == 0 or (n == 1 and shown[0] == locus.hunting_mode) else None))  # fmt: skip
+        first = n == 0
+        ax.plot(ev[0, j].real, ev[0, j].imag, ">", color="k", ms=4, label=f"at {v0:.0f} km/h" if first else None)
+        ax.plot(ev[-1, j].real, ev[-1, j].imag, "s", mfc="none", color="k", ms=4, label=f"at {v1:.0f} km/h" if first else None)
+    ax.axvline(0.0, color="tab:red", lw=1, label="stability boundary (real part 0)")
     h = locus.hunting
     if zoom:
         ax.set_xlim(h.real.min() - 1, h.real.max() + 1)
         ax.set_ylim(min(h.imag.min(), 0) - 2, h.imag.max() + 2)
     else:
-        ax.set_xlim(max(ev.real.min(), -60), max(5, ev.real.max() + 2))
-        ax.set_ylim(0, min(ev.imag.max(), 150))
+        pts = np.concatenate([ev[:, j] for j in shown]) if shown else h
+        pts = pts[(pts.real > -60) & (pts.imag < 150)]
+        re_lo, re_hi = min(pts.real.min(), 0.0), max(pts.real.max(), 0.0)
+        im_hi = pts.imag.max()
+        ax.set_xlim(re_lo - 0.08 * (re_hi - re_lo), re_hi + 0.08 * (re_hi - re_lo))
+        ax.set_ylim(0, im_hi * 1.12)
     vc = locus.critical.speed_kmh
     ax.set_title(f"Root locus {locus.speeds_kmh[0]:.0f}-{locus.speeds_kmh[-1]:.0f} km/h; crossing at {vc:.1f} km/h")
     ax.set_xlabel("real part (1/s)")
@@ -217,12 +237,13 @@ def curves_figure(curves, nominal_kmh: float, path, title: str = ""):
     rows = int(np.ceil(n / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(5.5 * cols, 3.8 * rows), squeeze=False)
     for ax, curve in zip(axes.ravel(), curves):
-        ax.plot(curve.values, curve.critical_speed_kmh, "o-", ms=3)
-        ax.axhline(nominal_kmh, color="0.5", lw=0.8, ls="--")
-        ax.axhline(EN14363_KMH, color="tab:green", lw=0.8, ls=":")
-        ax.set_xlabel(curve.param)
+        ax.plot(curve.values, curve.critical_speed_kmh, "o-", ms=3, label="linear critical speed")
+        ax.axhline(nominal_kmh, color="0.5", lw=0.8, ls="--", label=f"nominal bogie {nominal_kmh:.1f} km/h")
+        ax.axhline(EN14363_KMH, color="tab:green", lw=0.8, ls=":", label=f"EN 14363 requirement {EN14363_KMH:.0f} km/h")
+        ax.set_xlabel(param_label(curve.param))
         ax.set_ylabel("critical speed (km/h)")
         ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     if title:
@@ -242,9 +263,13 @@ def grids_figure(grids, path, title: str = ""):
         mesh = ax.pcolormesh(x, y, grid.critical_speed_kmh, shading="nearest", cmap="viridis")
         ax.contour(x, y, grid.critical_speed_kmh, levels=[EN14363_KMH], colors="w", linewidths=1)
         best = grid.maximum()
-        ax.plot(best["values"][1], best["values"][0], "r*", ms=12)
-        ax.set_xlabel(grid.params[1])
-        ax.set_ylabel(grid.params[0])
+        ax.plot(best["values"][1], best["values"][0], "r*", ms=12,
+                label=f"maximum {best['critical_speed_kmh']} km/h")  # fmt: skip
+        ax.plot([], [], color="w", lw=1, label=f"{EN14363_KMH:.0f} km/h contour (EN 14363)")
+        ax.set_xlabel(param_label(grid.params[1]))
+        ax.set_ylabel(param_label(grid.params[0]))
+        legend = ax.legend(loc="lower right", fontsize=7, facecolor="0.3", labelcolor="w", framealpha=0.8)
+        legend.get_frame().set_edgecolor("0.3")
         fig.colorbar(mesh, ax=ax, label="critical speed (km/h)")
     for ax in axes.ravel()[n:]:
         ax.axis("off")
