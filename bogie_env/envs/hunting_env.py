@@ -109,8 +109,12 @@ class BogieHuntingEnv(gym.Env):
     optional per-episode ranges), `track` (alignment rms 0.5 mm over 3-80 m, German high-speed
     spectrum shape), `randomize` (per-episode parameter scale ranges, e.g.
     `{"Csy": [0.5, 1.0]}`), `actuators`, `observation`, `reward`, `hunting`.
-    `reset(options=...)` accepts `start_kmh`, `end_kmh`, `accel` and `params` (scale factors);
-    the step limit is the config's, so a ramp made longer by reset options is truncated there.
+    `reset(options=...)` accepts `start_kmh`, `end_kmh`, `accel` (0-10 m/s²: the speed only
+    ramps up or stays constant) and `params` (a mapping of scale factors); the step limit is the
+    config's, so a ramp made longer by reset options is truncated there. Every bad value is a
+    `ConfigError` naming the key; `randomize` ranges are checked when the env is made.
+    `step()` before the first `reset()` raises `gymnasium.error.ResetNeeded`. `render_fps` is
+    `1 / dt` (100 with the default 0.01 s), so recorded videos play in real time.
     `variant` names a preset of `bogie_env.envs.config.VARIANTS` that `config` merges into; the
     registered ids set it: `Bogie/HuntingPassive-v0` (`passive`), `Bogie/HuntingSemiActive-v0`
     (`semi_active`), `Bogie/HuntingSlowRamp-v0` (`slow_ramp`); `Bogie/Hunting-v0` and its
