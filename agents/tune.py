@@ -114,8 +114,13 @@ def trial_config(base: dict, hyperparams: dict, timesteps: int, trial_time_s: fl
     config["max_wall_time_s"] = trial_time_s
     config["checkpoint"] = {"freq_steps": max(config["n_envs"], timesteps // 4)}
     config["eval"] = {**(config.get("eval") or {}), "freq_steps": 10 * timesteps}  # scored once, at the end
-    if config["algo"] != "ppo":
-        hyper = config["hyperparams"]
+    hyper = config["hyperparams"]
+    if config["algo"] == "ppo":
+        # A trial may run fewer envs than the base config: the minibatch must fit in one rollout.
+        rollout = int(hyper.get("n_steps", 2048)) * int(config["n_envs"])
+        if "batch_size" in hyper:
+            hyper["batch_size"] = min(int(hyper["batch_size"]), rollout)
+    else:
         hyper["learning_starts"] = min(int(hyper.get("learning_starts", 0)), timesteps // 4)
     return config
 

@@ -177,6 +177,17 @@ def test_tune_trial_config_keeps_the_agent_config_and_bounds_the_budget(tmp_path
     assert written["hyperparams"]["learning_rate"] == 1e-4 and written["total_timesteps"] == base["total_timesteps"]
 
 
+def test_tune_trial_with_fewer_envs_fits_the_minibatch_in_one_rollout():
+    from bogie_agents.train import load_run_config, validate_run_config
+    from bogie_agents.tune import trial_config
+
+    base = load_run_config(None, "ppo")
+    base["n_envs"] = 8  # bogie tune --n-envs 8: a rollout of 8 x n_steps is smaller than the shipped batch
+    trial = trial_config(base, {"learning_rate": 1e-4}, 2048, 60.0)
+    assert trial["hyperparams"]["batch_size"] == min(base["hyperparams"]["batch_size"], 8 * base["hyperparams"]["n_steps"])
+    validate_run_config(trial, where="trial")
+
+
 def test_tune_rejects_bad_budgets():
     from bogie_agents.tune import check_budget
 
