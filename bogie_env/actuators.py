@@ -21,8 +21,15 @@ A channel has one of three modes (``MODE_*``): ``force`` (commanded force ``a * 
 ``semi_active`` (a damper ``-c v`` with ``c`` commanded in ``[c_min, c_max]``; it only
 dissipates, also when saturated) or ``off``. Its command passes through a delay of whole
 control steps and a first-order lag (exact ``exp(-t/tau)`` within the interval), and its
-output saturates at ``max_force``. A force-rate limit belongs here too: it would be one more
-field of :data:`CHANNEL_FIELDS` applied in :func:`channel_output`.
+output saturates at ``max_force``. A force channel's lagged force can also be rate-limited
+(``rate_limit``, N/s or N m/s; ``None``: no limit): the lag then slews at the limit until its
+own rate falls below it, solved exactly within the interval (:func:`lagged_force`), like the
+lag itself. Semi-active channels' damping coefficients are not rate-limited (their valve
+response is the lag).
+
+Per-row command health (:func:`healthy_command`): the task may scale a row's commands (an
+actuator gain error), zero them (a failed actuator) or replace them by a held value (a stuck
+actuator); a row with gain 1 and no fault takes its commands unchanged.
 
 Adding a channel is one entry in :data:`CHANNELS` (see ``docs/extending.md``).
 """
@@ -57,7 +64,8 @@ class Channel:
 # 10 Hz first-order bandwidth (hunting sits at 2-10 Hz); semi-active damping ranges that reach
 # the force limit at typical hunting velocities.
 def _defaults(max_force: float, c_max: float) -> dict[str, Any]:
-    return {"mode": "force", "max_force": max_force, "c_min": 0.0, "c_max": c_max, "bandwidth_hz": 10.0, "delay_steps": 0}
+    return {"mode": "force", "max_force": max_force, "c_min": 0.0, "c_max": c_max, "bandwidth_hz": 10.0, "delay_steps": 0,
+            "rate_limit": None}
 
 
 CHANNELS: tuple[Channel, ...] = (
@@ -81,8 +89,8 @@ _VELOCITY = np.array([state_index(c.velocity) for c in CHANNELS], dtype=np.int64
 _RELATIVE_TO = np.array([-1 if c.relative_to is None else state_index(c.relative_to) for c in CHANNELS], dtype=np.int64)
 
 # ---- per-channel settings, one row per channel (float64 so one array carries them all) -----
-CHANNEL_FIELDS = ("mode", "max_force", "c_min", "c_max", "decay_rate", "delay_steps", "action")
-CH_MODE, CH_MAX_FORCE, CH_C_MIN, CH_C_MAX, CH_DECAY_RATE, CH_DELAY_STEPS, CH_ACTION = range(len(CHANNEL_FIELDS))
+CHANNEL_FIELDS = ("mode", "max_force", "c_min", "c_max", "decay_rate", "delay_steps", "action", "rate_limit")
+CH_MODE, CH_MAX_FORCE, CH_C_MIN, CH_C_MAX, CH_DECAY_RATE, CH_DELAY_STEPS, CH_ACTION, CH_RATE_LIMIT = range(len(CHANNEL_FIELDS))
 
 # ---- the actuator state of one row: lagged force targets and damping ------------------------
 FORCE, DAMPING = 0, 1
@@ -101,6 +109,7 @@ def channel_table(settings: dict[str, dict[str, Any]] | None = None) -> np.ndarr
         table[:, CH_MODE] = MODE_FORCE
         table[:, CH_MAX_FORCE] = np.inf
         table[:, CH_ACTION] = -1
+        table[:, CH_RATE_LIMIT] = np.inf
         return table
     column = 0
     for k, name in enumerate(CHANNEL_NAMES):
@@ -113,6 +122,8 @@ def channel_table(settings: dict[str, dict[str, Any]] | None = None) -> np.ndarr
         table[k, CH_DECAY_RATE] = 2 * math.pi * spec["bandwidth_hz"]  # 1/tau of a first-order lag
         table[k, CH_DELAY_STEPS] = spec["delay_steps"]
         table[k, CH_ACTION] = column if mode != MODE_OFF else -1
+        rate = spec.get("rate_limit")
+        table[k, CH_RATE_LIMIT] = np.inf if rate is None else rate
         column += mode != MODE_OFF
     return table
 
@@ -176,6 +187,27 @@ def lagged(start, target, weight):
 
 
 @njit(cache=True, inline="always")
+def lagged_force(start, target, weight, decay_rate, rate_limit):
+    """A first-order lag whose rate is limited to ``rate_limit``, exactly, where the plain lag
+    has weight ``weight = exp(-decay_rate t)``.
+
+    The lag's rate ``decay_rate * |target - f|`` is largest at the start; if it exceeds the
+    limit, the force slews at the limit until ``|target - f| = rate_limit / decay_rate``
+    (at ``t1``), then follows the lag. Without a binding limit it is :func:`lagged`, bit for
+    bit; with one, ``t = -log(weight) / decay_rate``.
+    """
+    gap = target - start
+    if abs(gap) * decay_rate <= rate_limit:
+        return lagged(start, target, weight)
+    t = -math.log(weight) / decay_rate
+    sign = 1.0 if gap > 0.0 else -1.0
+    t1 = abs(gap) / rate_limit - 1.0 / decay_rate
+    if t <= t1:
+        return start + sign * rate_limit * t
+    return target - sign * (rate_limit / decay_rate) * math.exp(-decay_rate * (t - t1))
+
+
+@njit(cache=True, inline="always")
 def saturation(table, k):
     """Channel k's output limit: its max_force, 0 when off."""
     return table[k, CH_MAX_FORCE] if int(table[k, CH_MODE]) != MODE_OFF else 0.0
@@ -203,7 +235,7 @@ def channel_output(x, k, weight, lag, target, table):
     damping times its velocity, saturated (a saturated damper keeps its sign, so it still only
     dissipates)."""
     w = weight[k]
-    force = lagged(lag[FORCE, k], target[FORCE, k], w)
+    force = lagged_force(lag[FORCE, k], target[FORCE, k], w, table[k, CH_DECAY_RATE], table[k, CH_RATE_LIMIT])
     damping = lagged(lag[DAMPING, k], target[DAMPING, k], w)
     value = force - damping * channel_velocity(x, k)
     limit = saturation(table, k)
@@ -211,11 +243,12 @@ def channel_output(x, k, weight, lag, target, table):
 
 
 @njit(cache=True, inline="always")
-def advance_lag(lag, target, weight):
-    """The lag states at the end of the interval (weights at dt; exact first order), in place."""
+def advance_lag(lag, target, weight, table):
+    """The lag states at the end of the interval (weights at dt; exact first order, and exact
+    under a rate limit), in place."""
     for k in range(N_CHANNELS):
         w = weight[k]
-        lag[FORCE, k] = lagged(lag[FORCE, k], target[FORCE, k], w)
+        lag[FORCE, k] = lagged_force(lag[FORCE, k], target[FORCE, k], w, table[k, CH_DECAY_RATE], table[k, CH_RATE_LIMIT])
         lag[DAMPING, k] = lagged(lag[DAMPING, k], target[DAMPING, k], w)
 
 
@@ -231,22 +264,45 @@ def command_from_action(table, k, action_row, command):
         command[DAMPING, k] = table[k, CH_C_MIN] + 0.5 * (a + 1.0) * (table[k, CH_C_MAX] - table[k, CH_C_MIN])
 
 
+# ---- per-row command health: gain error, failed or stuck channels ------------------------------
+#: Rows of a row's health array (3, N_CHANNELS): command gain, held force, held damping.
+HEALTH_FIELDS = ("gain", "held_force", "held_damping")
+H_GAIN, H_HELD_FORCE, H_HELD_DAMPING = range(len(HEALTH_FIELDS))
+#: The held value is used where it is not NaN (a stuck channel); a failed channel has gain 0.
+
+
+def healthy() -> np.ndarray:
+    """(3, N_CHANNELS) health of a sound row: gain 1, nothing held."""
+    h = np.full((len(HEALTH_FIELDS), N_CHANNELS), np.nan)
+    h[H_GAIN] = 1.0
+    return h
+
+
+@njit(cache=True, inline="always")
+def healthy_command(health, k, command):
+    """Apply channel k's health to its command (in place): a held value replaces it, else it is
+    scaled by the gain (gain 1: unchanged, bit for bit)."""
+    if not math.isnan(health[H_HELD_FORCE, k]):
+        command[FORCE, k] = health[H_HELD_FORCE, k]
+        command[DAMPING, k] = health[H_HELD_DAMPING, k]
+    elif health[H_GAIN, k] != 1.0:
+        command[FORCE, k] *= health[H_GAIN, k]
+        command[DAMPING, k] *= health[H_GAIN, k]
+
+
 @njit(cache=True, inline="always")
 def delayed_targets(delay, steps, command, table, target):
     """Push this step's command into the row's delay ring and read each channel's target.
 
     ``delay`` (DELAY_SLOTS, 2, N_CHANNELS) holds the recent commands; a channel delayed by d
-    steps gets the command of d steps ago, and zero (holding still) before it had one.
+    steps gets the command of d steps ago, and before it had one what the ring held at the
+    row's start: zero (holding still; ``BatchSimulator.set_rows`` clears it) or, for a stuck
+    channel, its held value.
     """
     head = steps % DELAY_SLOTS
     for k in range(N_CHANNELS):
         delay[head, FORCE, k] = command[FORCE, k]
         delay[head, DAMPING, k] = command[DAMPING, k]
-        d = int(table[k, CH_DELAY_STEPS])
-        if steps < d:
-            target[FORCE, k] = 0.0
-            target[DAMPING, k] = 0.0
-        else:
-            slot = (head - d) % DELAY_SLOTS
-            target[FORCE, k] = delay[slot, FORCE, k]
-            target[DAMPING, k] = delay[slot, DAMPING, k]
+        slot = (head - int(table[k, CH_DELAY_STEPS])) % DELAY_SLOTS
+        target[FORCE, k] = delay[slot, FORCE, k]
+        target[DAMPING, k] = delay[slot, DAMPING, k]

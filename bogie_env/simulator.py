@@ -152,7 +152,7 @@ def advance_rows(start, stop, rows, channels, track, dt, n_sub):
         m[M_SPEED] = v0 + a * dt
         m[M_DISTANCE] = s0 + v0 * dt + 0.5 * a * dt * dt
         m[M_STEPS] = steps + 1
-        advance_lag(lag[n], target, weights[3 * n_sub])
+        advance_lag(lag[n], target, weights[3 * n_sub], channels)
         sample_track(track, m[M_DISTANCE], p[P_L1], track_sample[n])
 
 

@@ -153,3 +153,48 @@ def alignment_profile(
     values = np.fft.irfft(spectrum, n=n_samples)
     values *= rms / np.sqrt(np.mean(values**2))
     return TrackProfile(values, dx)
+
+
+# ---- track quality levels (EN 13848-5) ------------------------------------------------------
+#: Alignment (lateral) isolated-defect limits, mean-to-peak, wavelength band D1 (3-25 m), for
+#: the speed band 230 < V <= 300 km/h (the highest band of the standard's table), m. From
+#: EN 13848-5:2008+A1:2010 (alignment, D1): alert limit 4-7 mm, intervention limit 6-8 mm,
+#: immediate action limit 10 mm; the lower ends of the infrastructure manager's ranges are
+#: taken for "alert" and "intervention". Check against the edition in force (2017).
+ALIGNMENT_LEVELS: dict[str, float] = {"alert": 4e-3, "intervention": 6e-3, "immediate_action": 10e-3}
+D1_BAND_M = (3.0, 25.0)
+#: A level is met by a 200 m section (the length over which EN 13848 assesses a track section's
+#: standard deviation) whose largest |alignment| is the level's mean-to-peak limit.
+LEVEL_SECTION_M = 200.0
+
+
+def section_crest_factor(profile: TrackProfile, section_m: float = LEVEL_SECTION_M) -> float:
+    """Median over the profile's ``section_m`` sections of (largest |value|) / profile rms."""
+    n = max(1, int(round(section_m / profile.dx)))
+    m = profile.values.size // n
+    if m == 0 or profile.rms == 0:
+        raise ValueError(f"section_crest_factor: profile shorter than one {section_m} m section, or flat")
+    peaks = np.max(np.abs(profile.values[: m * n].reshape(m, n)), axis=1)
+    return float(np.median(peaks) / profile.rms)
+
+
+def alignment_profile_at_level(
+    level: str,
+    wavelength_min: float = D1_BAND_M[0],
+    wavelength_max: float = D1_BAND_M[1],
+    dx: float = 0.25,
+    n_samples: int = 2**20,
+    seed: int = 0,
+) -> TrackProfile:
+    """An alignment profile at an EN 13848-5 level (:data:`ALIGNMENT_LEVELS`).
+
+    Conversion: the profile (German spectrum shape, band-limited as in
+    :func:`alignment_profile`) is scaled so that the median 200 m section's largest |alignment|
+    equals the level's mean-to-peak limit: ``rms = limit / crest``, with ``crest`` measured on
+    the profile itself (:func:`section_crest_factor`; about 3.3 for the D1 band).
+    """
+    if level not in ALIGNMENT_LEVELS:
+        raise ValueError(f"track level {level!r} is not known; known levels: {', '.join(ALIGNMENT_LEVELS)}")
+    unit = alignment_profile(1.0, wavelength_min, wavelength_max, dx, n_samples, seed)
+    rms = ALIGNMENT_LEVELS[level] / section_crest_factor(unit)
+    return TrackProfile(unit.values * rms, dx)

@@ -15,10 +15,18 @@ from ..actuators import CHANNEL_NAMES as CHANNELS
 from ..actuators import CHANNELS as ACTUATOR_CHANNELS
 from ..actuators import MAX_DELAY_STEPS, MODES
 from ..fileio import load_yaml
-from ..params import CONFIG_DIR, BogieParams, ConfigError, load_params
+from ..params import CONFIG_DIR, FIELDS, BogieParams, ConfigError, load_params
+from ..track import ALIGNMENT_LEVELS
+from .scenario import validate_randomize
+from .sensors import SENSOR_NAMES, SENSOR_SETTINGS, default_sensor_config
 
 ACTUATOR_MODES = MODES
 OBSERVATION_TYPES = ("sensors", "state")
+#: How the RK4 substep is chosen (``integration.step_criterion``): "stability" (every
+#: eigenvalue inside RK4's stability region; v0) or "accuracy" (also the damping and frequency
+#: of every lightly damped mode within ``integration.tolerance``; v1). ``integration.n_sub``
+#: fixes the substeps per env step instead (convergence studies).
+STEP_CRITERIA = ("stability", "accuracy")
 _ACTUATOR_DEFAULTS = {c.name: dict(c.defaults) for c in ACTUATOR_CHANNELS}
 
 
@@ -53,10 +61,16 @@ def default_config() -> dict[str, Any]:
         # [0.5, 1] x large_perturbation, random signs): flange contact, as on a hunting cycle
         "large_perturbation_probability": 0.0,
         "large_perturbation": 0.012,  # m
-        "track": {"rms": 5e-4, "wavelength_min": 3.0, "wavelength_max": 80.0, "seed": 0},
-        "randomize": {},  # per-episode parameter scale ranges, e.g. {"Csy": [0.5, 1.0]}
+        # level: an EN 13848-5 alignment level (track.ALIGNMENT_LEVELS) instead of an rms
+        "track": {"rms": 5e-4, "wavelength_min": 3.0, "wavelength_max": 80.0, "seed": 0, "level": None},
+        # per-episode draws (envs/scenario.py): parameter scale ranges, e.g. {"Csy": [0.5, 1.0]},
+        # and named ranges/probabilities, e.g. {"conicity": [0.025, 0.3]}
+        "randomize": {},
         "actuators": copy.deepcopy(_ACTUATOR_DEFAULTS),
         "observation": {"type": "sensors", "noise": 0.0, "include_actuators": True},
+        # the sensor model of the "sensors" observation (envs/sensors.py); off in v0
+        "sensors": default_sensor_config(),
+        "integration": {"step_criterion": "stability", "tolerance": 0.1, "n_sub": None},
         "reward": {"lateral_weight": 0.5, "yaw_weight": 0.2, "effort_weight": 0.2, "time_weight": 0.0,
                    "yaw_reference": 5e-3},  # fmt: skip
         "hunting": {"window_m": 100.0, "rms_fraction": 0.6, "blowup_m": 0.1},
@@ -134,7 +148,15 @@ def validate(config: dict) -> dict:
     c["large_perturbation_probability"] = _number("large_perturbation_probability", c["large_perturbation_probability"], 0.0, 1.0)
     c["large_perturbation"] = _number("large_perturbation", c["large_perturbation"], 0.0, 0.03)
     tr = c["track"]
-    tr["rms"] = _number("track.rms", tr["rms"], 0.0, 0.01)
+    if tr["level"] is not None:
+        if tr["level"] not in ALIGNMENT_LEVELS:
+            raise ConfigError(f"config 'track.level' = {tr['level']!r} is not allowed; allowed: null, {', '.join(ALIGNMENT_LEVELS)}")
+        if tr["rms"] is not None:
+            raise ConfigError("config 'track.level' and 'track.rms' are both set; set 'track.rms' to null to use a level")
+    elif tr["rms"] is None:
+        raise ConfigError("config 'track.rms' is null and 'track.level' is null; give one")
+    else:
+        tr["rms"] = _number("track.rms", tr["rms"], 0.0, 0.01)
     tr["wavelength_min"] = _number("track.wavelength_min", tr["wavelength_min"], 1.0, 200.0)
     tr["wavelength_max"] = _number("track.wavelength_max", tr["wavelength_max"], 1.0, 500.0)
     if not tr["wavelength_min"] < tr["wavelength_max"]:
@@ -143,18 +165,11 @@ def validate(config: dict) -> dict:
         raise ConfigError(f"config 'track.seed' = {tr['seed']!r} must be an integer >= 0")
     if not isinstance(c["bogie_overrides"], Mapping):
         raise ConfigError("config 'bogie_overrides' must be a mapping of parameter names to numbers")
-    if not isinstance(c["randomize"], Mapping):
-        raise ConfigError("config 'randomize' must be a mapping like {'Csy': [0.5, 1.0]}")
-    from ..params import FIELDS
-
-    for name, value in c["randomize"].items():
-        if name not in FIELDS:
-            raise ConfigError(f"config 'randomize.{name}': unknown parameter; known parameters: {', '.join(FIELDS)}")
-        c["randomize"][name] = _range(f"randomize.{name}", value, 1e-3, 100.0)
-    c["randomize"] = {name: bounds for name, bounds in c["randomize"].items() if bounds is not None}  # null: not randomised
-    if c["randomize"]:  # every scale in a range must give a valid bogie, checked now rather than at a reset
+    c["randomize"] = validate_randomize(c["randomize"])
+    factors = {k: v for k, v in c["randomize"].items() if k in FIELDS}
+    if factors:  # every scale in a range must give a valid bogie, checked now rather than at a reset
         base = load_params(c["bogie"], c["bogie_overrides"])
-        for name, (low, high) in c["randomize"].items():
+        for name, (low, high) in factors.items():
             for scale in (low, high):
                 try:
                     base.scaled(**{name: scale})
@@ -176,9 +191,32 @@ def validate(config: dict) -> dict:
         if spec["c_min"] > spec["c_max"]:
             raise ConfigError(f"config '{where}.c_min' must not exceed '{where}.c_max'")
         spec["bandwidth_hz"] = _number(f"{where}.bandwidth_hz", spec["bandwidth_hz"], 0.0, 1e4, low_open=True)
+        if spec.get("rate_limit") is not None:
+            spec["rate_limit"] = _number(f"{where}.rate_limit", spec["rate_limit"], 0.0, 1e9, low_open=True)
         d = spec["delay_steps"]
         if isinstance(d, bool) or not isinstance(d, int) or not 0 <= d <= MAX_DELAY_STEPS:
             raise ConfigError(f"config '{where}.delay_steps' = {d!r} must be an integer in [0, {MAX_DELAY_STEPS}]")
+    se = c["sensors"]
+    if not isinstance(se["enabled"], bool):
+        raise ConfigError(f"config 'sensors.enabled' = {se['enabled']!r} must be true or false")
+    for name in SENSOR_NAMES:
+        if not isinstance(se[name], Mapping):
+            raise ConfigError(f"config 'sensors.{name}' must be a mapping with keys {', '.join(SENSOR_SETTINGS)}")
+        unknown = set(se[name]) - set(SENSOR_SETTINGS)
+        if unknown:
+            raise ConfigError(f"unknown config key(s) 'sensors.{name}.{sorted(unknown)[0]}'; known: {', '.join(SENSOR_SETTINGS)}")
+        se[name]["noise_density"] = _number(f"sensors.{name}.noise_density", se[name]["noise_density"], 0.0, 1e3)
+        se[name]["bias"] = _number(f"sensors.{name}.bias", se[name]["bias"], 0.0, 1e3)
+        se[name]["bandwidth_hz"] = _number(f"sensors.{name}.bandwidth_hz", se[name]["bandwidth_hz"], 0.0, 1e4, low_open=True)
+    if se["enabled"] and c["observation"]["type"] != "sensors":
+        raise ConfigError("config 'sensors.enabled' = true needs 'observation.type' = 'sensors' (the model measures those channels)")
+    ig = c["integration"]
+    if ig["step_criterion"] not in STEP_CRITERIA:
+        raise ConfigError(f"config 'integration.step_criterion' = {ig['step_criterion']!r} is not allowed; allowed: {', '.join(STEP_CRITERIA)}")
+    ig["tolerance"] = _number("integration.tolerance", ig["tolerance"], 0.0, 1.0, low_open=True)
+    n_sub = ig["n_sub"]
+    if n_sub is not None and (isinstance(n_sub, bool) or not isinstance(n_sub, int) or not 1 <= n_sub <= 1000):
+        raise ConfigError(f"config 'integration.n_sub' = {n_sub!r} must be null or an integer in [1, 1000]")
     ob = c["observation"]
     if ob["type"] not in OBSERVATION_TYPES:
         raise ConfigError(f"config 'observation.type' = {ob['type']!r} is not allowed; allowed: {', '.join(OBSERVATION_TYPES)}")
@@ -214,6 +252,49 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "semi_active": {"actuators": semi_active_actuators()},  # semi-active dampers on all four channels
     "slow_ramp": {"speed": {"accel": 0.1}},  # the paper's ramp, 300 -> 600 km/h in 833 s
 }
+
+# ---- v1: the realistic task (sources in docs/environment.md, "Bogie/Hunting-v1") ---------------
+#: One control step of loop delay: the computational delay of a digital loop sampled at
+#: 100 Hz (measure, compute, output within one sample; Franklin, Powell & Workman, "Digital
+#: Control of Dynamic Systems", 3rd ed., Sec. 4.3.5), inside the 5-20 ms of active suspensions.
+V1_DELAY_STEPS = 1
+#: Force-rate limits: series stiffness x the actuator's stroke-velocity limit,
+#: 2 MN/m x 0.1 m/s = 200 kN/s per actuator (yaw-damper series stiffness of a few MN/m; stroke
+#: velocities of 0.1-0.2 m/s for servo-hydraulic and electromechanical suspension actuators),
+#: and for the yaw channels, a pair of such actuators on a lever of about 1 m: 400 kN m/s.
+V1_RATE_LIMITS = {"frame_lateral": 2.0e5, "frame_yaw": 4.0e5, "wheelset1_yaw": 4.0e5, "wheelset2_yaw": 4.0e5}
+V1_RANDOMIZE: dict[str, Any] = {
+    "conicity": [0.025, 0.3],  # new to worn wheels (EN 15302 equivalent conicity)
+    "primary_longitudinal_stiffness": [0.5, 1.5],
+    "primary_lateral_stiffness": [0.5, 1.5],
+    "creep_factor": [0.5, 1.0],  # dry to contaminated rail
+    "damper_factor": [0.5, 1.0],  # new to degraded secondary dampers
+    "axle_load": [0.8, 1.2],
+    "actuator_gain": [0.8, 1.25],
+    "actuator_failure_probability": 0.05,
+    "actuator_stuck_probability": 0.05,
+}
+
+
+def _v1(actuators: dict[str, Any], **extra: Any) -> dict[str, Any]:
+    acts = {name: {**spec, "delay_steps": V1_DELAY_STEPS, "rate_limit": V1_RATE_LIMITS[name]} for name, spec in actuators.items()}
+    base = {
+        "speed": {"start_kmh": 100.0, "end_kmh": 600.0, "accel": 1.5},
+        "track": {"level": "alert", "rms": None, "wavelength_min": 3.0, "wavelength_max": 25.0},
+        "randomize": copy.deepcopy(V1_RANDOMIZE),
+        "sensors": {"enabled": True},
+        "actuators": acts,
+        "integration": {"step_criterion": "accuracy"},
+    }
+    return _merge(base, extra, "") if extra else base
+
+
+VARIANTS.update({
+    "v1": _v1(copy.deepcopy(_ACTUATOR_DEFAULTS)),
+    "v1_passive": _v1(passive_actuators()),
+    "v1_semi_active": _v1(semi_active_actuators()),
+    "v1_slow_ramp": _v1(copy.deepcopy(_ACTUATOR_DEFAULTS), speed={"accel": 0.1}),
+})
 
 
 def make_config(

@@ -120,9 +120,42 @@ class BogieHuntingEnv(gym.Env):
     (`semi_active`), `Bogie/HuntingSlowRamp-v0` (`slow_ramp`); `Bogie/Hunting-v0` and its
     second name `Bogie/HuntingActive-v0` use the defaults.
 
+    ## Bogie/Hunting-v1: the realistic task
+
+    `Bogie/Hunting-v1` (variant `v1`; also `Bogie/HuntingPassive-v1`, `Bogie/HuntingSemiActive-v1`,
+    `Bogie/HuntingSlowRamp-v1` at 0.1 m/s²) keeps the spaces, reward, termination and info of
+    v0 and changes the world (sources in `docs/environment.md`):
+
+    - Speed: 100 -> 600 km/h at 1.5 m/s² (worn wheels hunt far below 300 km/h).
+    - Sensors (`config["sensors"]`, `bogie_env/envs/sensors.py`): every sensor observation
+      (indices 0-6; the actuator forces stay exact) passes a first-order anti-alias filter
+      (40 Hz) and gets a per-episode bias and white noise: frame lateral accelerometer
+      80 µg/√Hz, bias 7.5 mg; yaw-rate gyro 0.008 °/s/√Hz, bias 0.2 °/s; wheelset-to-frame
+      LVDTs 1 µm/√Hz, bias 62.5 µm (lateral) and 17 µrad (yaw); speed 0.1 (km/h)/√Hz, bias 2 km/h.
+      Per-sample noise rms = density x √(π/2 x bandwidth). `observation.noise` stays 0.
+    - Actuators: `delay_steps` = 1 (10 ms loop delay) and `rate_limit` 200 kN/s (lateral),
+      400 kN m/s (yaw channels), on top of the 10 Hz lag and the saturation of v0.
+    - Track: alignment at the EN 13848-5 `alert` level (`track.level`; also `intervention`,
+      `immediate_action`), D1 band 3-25 m.
+    - Per-episode scenario (`config["randomize"]`, named entries, `bogie_env/envs/scenario.py`):
+      `conicity` [0.025, 0.3] (absolute), factors `primary_longitudinal_stiffness` and
+      `primary_lateral_stiffness` [0.5, 1.5], `creep_factor` [0.5, 1] (on the Kalker
+      coefficients), `damper_factor` [0.5, 1] (secondary dampers), `axle_load` [0.8, 1.2],
+      `actuator_gain` [0.8, 1.25] per channel; `actuator_failure_probability` 0.05 (one channel
+      gives zero force) and `actuator_stuck_probability` 0.05 (one channel holds a random command).
+      `reset(options=...)` sets any of them: e.g. `{"conicity": 0.2, "failed_actuator": "frame_yaw"}`,
+      `{"stuck_actuator": "frame_lateral", "stuck_command": 0.4}`, `{"actuator_gain": {"frame_yaw": 1.25}}`.
+      `env.unwrapped.task.scenario(0)` returns the episode's scenario.
+    - Integration: the RK4 substep meets an accuracy criterion (`integration.step_criterion =
+      "accuracy"`: decay rate and frequency of every lightly damped mode within 10 %, for every
+      bogie the ranges can draw), not stability alone: 10 substeps of 1 ms instead of 2 of 5 ms.
+
     ## Version History
 
     - v0: initial version.
+    - v1: sensor noise, bias and bandwidth; loop delay and force-rate limits; EN 13848-5 track
+      levels; per-episode conicity, suspension, creep, axle load, actuator gain and faults;
+      converged integration.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # 1 / dt; set per instance

@@ -34,6 +34,13 @@ IDS: dict[str, str | None] = {
     "Bogie/HuntingSemiActive-v0": "semi_active",
     # the paper's slow ramp, 300 -> 600 km/h at 0.1 m/s^2 (833 s), fully active
     "Bogie/HuntingSlowRamp-v0": "slow_ramp",
+    # v1, the realistic task: sensor noise, bias and bandwidth; one step of loop delay and
+    # force-rate limits; EN 13848-5 alert-level track; per-episode conicity, suspension,
+    # creep, axle load, actuator gain and faults; converged integration
+    "Bogie/Hunting-v1": "v1",
+    "Bogie/HuntingPassive-v1": "v1_passive",
+    "Bogie/HuntingSemiActive-v1": "v1_semi_active",
+    "Bogie/HuntingSlowRamp-v1": "v1_slow_ramp",
 }
 
 

@@ -29,6 +29,10 @@ from ..actuators import (
     CH_C_MAX,
     CH_MODE,
     CHANNEL_NAMES,
+    DAMPING,
+    FORCE,
+    H_HELD_DAMPING,
+    H_HELD_FORCE,
     MODE_SEMI,
     N_CHANNELS,
     active_channels,
@@ -36,10 +40,12 @@ from ..actuators import (
     command_from_action,
     damping_jacobian,
     generalised_forces,
+    healthy,
+    healthy_command,
     saturation,
 )
 from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _rhs_row, state_index
-from ..integrate import FASTMATH, OUT_FORCE, OUT_POWER, STATUS_OK, stable_substep
+from ..integrate import FASTMATH, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, stable_substep
 from ..params import BogieParams, ConfigError
 from ..simulator import (
     M_ACCEL,
@@ -53,8 +59,10 @@ from ..simulator import (
     chunk_bounds,
     LoopChooser,
 )
-from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, TrackInput, alignment_profile, perfect_track
+from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, TrackInput, alignment_profile, alignment_profile_at_level, perfect_track
+from . import scenario as scenarios
 from .config import MAX_ACCEL, MAX_NUM_ENVS, bogie_params, make_config, max_steps_for
+from .sensors import N_SENSED, SENSOR_NAMES, draw_biases, sense_rows, sensor_table
 
 KMH = 3.6
 _FLOAT_TYPES = (np.dtype(np.float32), np.dtype(np.float64))
@@ -93,6 +101,9 @@ SPEED_CENTRE_KMH = 450.0
 SPEED_SCALE_KMH = 150.0
 #: Scales of the full-state observation ("state" type): what counts as 1 for each state.
 STATE_SCALES = np.array([9e-3, 0.1, 1e-3, 0.05, 5e-3, 0.1, 5e-3, 0.1] * 2 + [9e-3, 0.1, 5e-3, 0.05], dtype=float)
+
+assert SENSOR_NAMES == SENSORS + ("speed",)  # the sensor model's table follows the observation
+
 
 def speed_index(observation_type: str) -> int:
     """Where the speed sits in an observation of this type."""
@@ -225,12 +236,14 @@ def _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch):
 
 # Not inlined: the serial call and the parallel loop run this one compilation of a run of rows.
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales):
-    """One env step of rows [start, stop): actions -> commands -> the simulator's interval -> task."""
+def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health):
+    """One env step of rows [start, stop): actions -> commands (through each row's actuator
+    health) -> the simulator's interval -> task."""
     command = sim_rows[5]
     for n in range(start, stop):
         for k in range(N_CHANNELS):
             command_from_action(channels, k, action[n], command[n])
+            healthy_command(health[n], k, command[n])
     advance_rows(start, stop, sim_rows, channels, track, dt, n_sub)
     scratch = np.empty((2, N_STATES))
     for n in range(start, stop):
@@ -251,30 +264,30 @@ def _clip_actions(action, out):
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales):
+def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health):
     """Check and clip the actions, then one env step of every row on the calling thread;
     returns -1, or the flat index of a non-finite action (nothing stepped)."""
     bad = _clip_actions(action_in, action)
     if bad < 0:
-        _step_rows(0, action.shape[0], sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales)
+        _step_rows(0, action.shape[0], sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health)
     return bad
 
 
 @njit(cache=True, fastmath=FASTMATH, parallel=True)
-def _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales):
+def _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health):
     n_rows = action.shape[0]
     n_chunks = min(n_rows, N_CHUNKS)
     for c in prange(n_chunks):
         start, stop = chunk_bounds(n_rows, n_chunks, c)
-        _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales)
+        _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health)
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _step_checked_parallel(action_in, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales):
+def _step_checked_parallel(action_in, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health):
     """:func:`_step_serial` with the rows on the thread pool."""
     bad = _clip_actions(action_in, action)
     if bad < 0:
-        _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales)
+        _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health)
     return bad
 
 
@@ -308,11 +321,12 @@ class HuntingTask:
         self.base_params: BogieParams = bogie_params(c)
         self.model = BogieModel(self.base_params)
         tr = c["track"]
-        alignment = (
-            alignment_profile(tr["rms"], tr["wavelength_min"], tr["wavelength_max"], seed=tr["seed"])
-            if tr["rms"] > 0
-            else perfect_track()
-        )
+        if tr["level"] is not None:
+            alignment = alignment_profile_at_level(tr["level"], tr["wavelength_min"], tr["wavelength_max"], seed=tr["seed"])
+        elif tr["rms"] > 0:
+            alignment = alignment_profile(tr["rms"], tr["wavelength_min"], tr["wavelength_max"], seed=tr["seed"])
+        else:
+            alignment = perfect_track()
         self.track_input = TrackInput(alignment)
         # actuator channels -> action columns
         self.active_channels = active_channels(c["actuators"])
@@ -332,7 +346,7 @@ class HuntingTask:
         semi = self.channels[:, CH_MODE] == MODE_SEMI
         max_damping = np.where(semi, self.channels[:, CH_C_MAX], 0.0)
         extra = damping_jacobian(self.model.input_matrix(), max_damping) if np.any(max_damping) else None
-        self.step_choice = stable_substep(self.model, lo, hi, c["dt"], extra_jacobian=extra)
+        self.step_choice = self._step_choice(lo, hi, extra)
         self.n_sub = self.step_choice.n_sub
         self.sim = BatchSimulator(self.model, n, c["dt"], (lo, hi), self.track_input, self.channels, n_sub=self.n_sub,
                                   num_threads=c["num_threads"])  # fmt: skip
@@ -347,6 +361,15 @@ class HuntingTask:
         self.actions = np.zeros((n, self.action_dim))
         self.rngs = [np.random.default_rng() for _ in range(n)]
         self.episode_params: list[dict[str, float]] = [{} for _ in range(n)]
+        # actuator health per row (gain, held command), sensor model state per row
+        self.health = np.repeat(healthy()[None], n, axis=0)
+        self.scenarios: list[scenarios.Scenario] = [scenarios.Scenario() for _ in range(n)]
+        self.sensors_enabled = bool(c["sensors"]["enabled"])
+        self.sensor_table = sensor_table(c["sensors"], c["dt"])
+        self.sensor_filter = np.zeros((n, N_SENSED))
+        self.sensor_bias = np.zeros((n, N_SENSED))
+        self.sensor_scale = np.ones((n, N_SENSED))
+        self.sensor_rng = np.zeros(n, dtype=np.uint64)
 
     # ---- configuration ----------------------------------------------------------------------
     def speed_limits(self) -> tuple[float, float]:
@@ -355,6 +378,25 @@ class HuntingTask:
         lows = [sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else [])
         highs = [sp["end_kmh"]] + ([sp["end_kmh_range"][1]] if sp["end_kmh_range"] else [])
         return min(lows) / KMH, max(highs) / KMH
+
+    def _step_choice(self, lo: float, hi: float, extra: np.ndarray | None) -> StepChoice:
+        """The RK4 substep (``integration`` config): fixed, or the fewest substeps that meet the
+        criterion for every bogie the episodes can draw (the nominal one and the ends of the
+        named ranges that change the dynamics)."""
+        ig = self.config["integration"]
+        dt = self.config["dt"]
+        if ig["n_sub"] is not None:
+            return StepChoice(dt / ig["n_sub"], ig["n_sub"], float("nan"), float("nan"))
+        if ig["step_criterion"] == "stability":
+            return stable_substep(self.model, lo, hi, dt, extra_jacobian=extra)
+        ranges = {k: v for k, v in self.config["randomize"].items() if k in scenarios.RANGES and k != "actuator_gain"}
+        models = [self.model]
+        for end in (0, 1):
+            models.append(scenarios.scenario_model(self.base_params, scenarios.Scenario(**{k: v[end] for k, v in ranges.items()}), self.model))
+            for k, v in ranges.items():
+                models.append(scenarios.scenario_model(self.base_params, scenarios.Scenario(**{k: v[end]}), self.model))
+        choices = [accurate_substep(m, lo, hi, dt, ig["tolerance"], extra_jacobian=extra) for m in models]
+        return max(choices, key=lambda choice: choice.n_sub)
 
     def _task_settings(self) -> np.ndarray:
         c = self.config
@@ -377,9 +419,10 @@ class HuntingTask:
     def reset_rows(self, rows: np.ndarray, options: Mapping[str, Any] | None = None) -> None:
         """Start new episodes in ``rows`` (their RNGs must already be seeded)."""
         options = dict(options or {})
-        unknown = set(options) - {"start_kmh", "end_kmh", "accel", "params"}
+        allowed = ("start_kmh", "end_kmh", "accel", "params") + scenarios.OPTION_NAMES
+        unknown = set(options) - set(allowed)
         if unknown:
-            raise ConfigError(f"unknown reset option(s) {sorted(unknown)}; allowed: start_kmh, end_kmh, accel, params")
+            raise ConfigError(f"unknown reset option(s) {sorted(unknown)}; allowed: {', '.join(allowed)}")
         if not isinstance(options.get("params") or {}, Mapping):
             raise ConfigError(f"reset option 'params' = {options['params']!r} must be a mapping of parameter names "
                               "to scale factors, e.g. {'Csy': 0.5}")  # fmt: skip
@@ -400,10 +443,11 @@ class HuntingTask:
                     f"reset speeds start_kmh={start:g}, end_kmh={end:g} must satisfy "
                     f"{lo * KMH:g} <= start_kmh <= end_kmh <= {hi * KMH:g} (the range the step size was chosen for)"
                 )
-            factors = {name: float(rng.uniform(*bounds)) for name, bounds in self.config["randomize"].items()}
-            factors.update(options.get("params", {}) or {})
-            model = BogieModel(self.base_params.scaled(**factors)) if factors else self.model
-            self.episode_params[i] = factors
+            scenario = scenarios.draw_scenario(self.config["randomize"], options, rng, list(self.channel_names))
+            scenario.factors.update(options.get("params", {}) or {})
+            model = scenarios.scenario_model(self.base_params, scenario, self.model)
+            self.episode_params[i] = scenario.factors
+            self.scenarios[i] = scenario
             x = model.equilibrium(start / KMH)
             sigma = self.config["initial_perturbation"]
             offsets = rng.normal(0.0, sigma, 3)
@@ -415,6 +459,11 @@ class HuntingTask:
             x[[PSI1, PSI2, PSIB]] += yaws
             distance = rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
             self.sim.set_rows(i, x, start / KMH, accel, distance, end_speed=end / KMH, coefficients=model.coefficients)
+            self._set_health(i, scenario)
+            if self.sensors_enabled:
+                self.sensor_bias[i] = draw_biases(self.config["sensors"], rng)
+                self.sensor_rng[i] = np.uint64(rng.integers(1, 2**63))
+                self.sensor_scale[i] = self._sensor_scales(model.coefficients[P_DELTA])
             self.episode[i] = 0.0
             self.episode[i, E_ONSET_KMH] = np.nan
             self.flags[i] = 0
@@ -422,7 +471,29 @@ class HuntingTask:
             self.info[i, I_SPEED_KMH] = start
             self.info[i, I_ONSET_KMH] = np.nan
         self.observe(rows)
+        if self.sensors_enabled:
+            sense_rows(rows.astype(np.int64), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
+                       self.sensor_rng, self.sensor_table, True, OBS_BOUND)  # fmt: skip
         self._add_noise(rows)
+
+    def _set_health(self, i: int, scenario: "scenarios.Scenario") -> None:
+        """Row i's actuator health; a stuck channel holds its command from the first step (its lag
+        and delay ring start at the held value)."""
+        self.health[i] = scenarios.scenario_health(scenario, self.channels)
+        for k in range(N_CHANNELS):
+            held_force, held_damping = self.health[i, H_HELD_FORCE, k], self.health[i, H_HELD_DAMPING, k]
+            if not np.isnan(held_force):
+                self.sim.lag[i, FORCE, k] = self.sim.delay[i, :, FORCE, k] = held_force
+                self.sim.lag[i, DAMPING, k] = self.sim.delay[i, :, DAMPING, k] = held_damping
+
+    @staticmethod
+    def _sensor_scales(delta: float) -> np.ndarray:
+        """SI value of one observation unit per measured channel (the observation's scales)."""
+        return np.array([ACCEL_SCALE, YAW_RATE_SCALE, delta, delta, REL_YAW_SCALE, REL_YAW_SCALE, SPEED_SCALE_KMH / KMH])
+
+    def scenario(self, row: int = 0) -> dict[str, Any]:
+        """What row's episode runs with: parameter factors, conicity, faults (JSON-friendly)."""
+        return self.scenarios[row].as_dict()
 
     @staticmethod
     def _draw(rng, forced, value, bounds, name) -> float:
@@ -485,10 +556,13 @@ class HuntingTask:
         a = self._action_array(actions)
         sim = self.sim
         args = (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, self.actions, self._task_rows, self.settings,
-                self.state_scales)  # fmt: skip
+                self.state_scales, self.health)  # fmt: skip
         bad = self.loops.run(_step_serial, _step_checked_parallel, a, *args)
         if bad >= 0:
             self._raise_non_finite(a, bad)
+        if self.sensors_enabled:
+            sense_rows(np.arange(self.num_envs), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
+                       self.sensor_rng, self.sensor_table, False, OBS_BOUND)  # fmt: skip
         if self.config["observation"]["noise"] > 0:
             self._add_noise(np.arange(self.num_envs))
 

@@ -1,0 +1,243 @@
+"""Per-episode scenarios: the bogie, wheels, rail and actuator health an episode runs with.
+
+The env config's ``randomize`` section maps names to what is drawn at each reset:
+
+- a bogie parameter (``bogie_env.params.FIELDS``) -> ``[low, high]``: a uniform scale factor
+  on it (the v0 form, e.g. ``{"Csy": [0.5, 1.0]}``);
+- a named entry of :data:`RANGES` -> ``[low, high]``: a uniform draw of that quantity;
+- a named entry of :data:`PROBABILITIES` -> a probability.
+
+Draws happen in the order of the section, one uniform per entry (one per channel for
+``actuator_gain``; three for a fault: whether, which channel, the held command), whether or
+not a reset option then overrides the value: pinning one quantity never shifts the others'
+random stream. ``reset(options=...)`` sets any of them directly (:data:`OPTION_NAMES`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..actuators import CHANNEL_NAMES, CH_C_MAX, CH_C_MIN, CH_MAX_FORCE, CH_MODE, H_GAIN, H_HELD_DAMPING, H_HELD_FORCE
+from ..actuators import MODE_FORCE, MODE_OFF, MODE_SEMI, N_CHANNELS, healthy
+from ..dynamics import P_F11, P_F12, P_F22, P_F33, BogieModel
+from ..params import FIELDS, BogieParams, ConfigError
+
+
+@dataclass(frozen=True)
+class Range:
+    """A named randomised quantity: what it sets and the values it may take."""
+
+    description: str
+    low: float
+    high: float
+
+
+#: Named per-episode ranges (uniform draws). Factors multiply the bogie's value.
+RANGES: dict[str, Range] = {
+    "conicity": Range("equivalent conicity lam (absolute; new wheels ~0.025-0.05, worn 0.1-0.3, EN 15302)", 1e-3, 0.5),
+    "primary_longitudinal_stiffness": Range("factor on Kpx (primary longitudinal stiffness)", 0.05, 5.0),
+    "primary_lateral_stiffness": Range("factor on Kpy (primary lateral stiffness)", 0.05, 5.0),
+    "creep_factor": Range("factor on the Kalker coefficients f11, f12, f22, f33 (contaminated rail < 1)", 0.05, 2.0),
+    "damper_factor": Range("factor on the secondary dampers Csx (yaw) and Csy (lateral); degraded < 1", 0.0, 2.0),
+    "axle_load": Range("factor on the axle load Wpa (the Hertz contact and creep coefficients follow)", 0.5, 1.5),
+    "actuator_gain": Range("factor on each actuator channel's command, drawn per channel (gain error)", 0.0, 3.0),
+}
+#: Named per-episode probabilities (at most one actuator is faulty per episode).
+PROBABILITIES: dict[str, str] = {
+    "actuator_failure_probability": "one active channel, drawn uniformly, gives zero force",
+    "actuator_stuck_probability": "one active channel, drawn uniformly, holds a random command",
+}
+FAULT_OPTIONS = ("failed_actuator", "stuck_actuator", "stuck_command")
+#: reset(options=...) keys this module reads (besides v0's start_kmh, end_kmh, accel, params).
+OPTION_NAMES: tuple[str, ...] = tuple(RANGES) + FAULT_OPTIONS
+
+
+def validate_randomize(randomize: Any) -> dict[str, Any]:
+    """The config's ``randomize`` section, checked entry by entry."""
+    if not isinstance(randomize, Mapping):
+        raise ConfigError("config 'randomize' must be a mapping like {'conicity': [0.025, 0.3], 'Csy': [0.5, 1.0]}")
+    out: dict[str, Any] = {}
+    for name, value in randomize.items():
+        where = f"randomize.{name}"
+        if value is None:  # null: not randomised
+            continue
+        if name in PROBABILITIES:
+            out[name] = _number(where, value, 0.0, 1.0)
+        elif name in RANGES or name in FIELDS:
+            low, high = (RANGES[name].low, RANGES[name].high) if name in RANGES else (1e-3, 100.0)
+            if not isinstance(value, (list, tuple)) or len(value) != 2:
+                raise ConfigError(f"config {where!r} = {value!r} must be [low, high]")
+            a, b = (_number(where, v, low, high) for v in value)
+            if a > b:
+                raise ConfigError(f"config {where!r} = {value!r}: low must not exceed high")
+            out[name] = (a, b)
+        else:
+            raise ConfigError(
+                f"config {where!r}: unknown parameter or named entry; allowed: the named ranges {', '.join(RANGES)}, "
+                f"the probabilities {', '.join(PROBABILITIES)}, or a bogie parameter ({', '.join(FIELDS)})"
+            )
+    if "conicity" in out and "lam" in out:
+        raise ConfigError("config 'randomize' sets both 'conicity' and 'lam'; give one")
+    total = out.get("actuator_failure_probability", 0.0) + out.get("actuator_stuck_probability", 0.0)
+    if total > 1.0:
+        raise ConfigError(f"config 'randomize': actuator_failure_probability + actuator_stuck_probability = {total:g} must be <= 1")
+    return out
+
+
+def _number(where: str, value: Any, low: float, high: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not low <= value <= high:
+        raise ConfigError(f"{where} = {value!r} is not allowed; allowed: a number in [{low:g}, {high:g}]")
+    return float(value)
+
+
+@dataclass
+class Scenario:
+    """What one episode runs with (all values as used, after reset options)."""
+
+    factors: dict[str, float] = field(default_factory=dict)  # bogie parameter scale factors (v0 form)
+    conicity: float | None = None  # None: the bogie's own
+    primary_longitudinal_stiffness: float = 1.0
+    primary_lateral_stiffness: float = 1.0
+    creep_factor: float = 1.0
+    damper_factor: float = 1.0
+    axle_load: float = 1.0
+    actuator_gain: np.ndarray = field(default_factory=lambda: np.ones(N_CHANNELS))
+    failed_actuator: str | None = None
+    stuck_actuator: str | None = None
+    stuck_command: float = 0.0  # the stuck channel's held action, in [-1, 1]
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-friendly summary (the info's ``scenario``)."""
+        return {
+            "params": dict(self.factors),
+            "conicity": self.conicity,
+            "primary_longitudinal_stiffness": self.primary_longitudinal_stiffness,
+            "primary_lateral_stiffness": self.primary_lateral_stiffness,
+            "creep_factor": self.creep_factor,
+            "damper_factor": self.damper_factor,
+            "axle_load": self.axle_load,
+            "actuator_gain": dict(zip(CHANNEL_NAMES, map(float, self.actuator_gain))),
+            "failed_actuator": self.failed_actuator,
+            "stuck_actuator": self.stuck_actuator,
+            "stuck_command": self.stuck_command if self.stuck_actuator else None,
+        }
+
+    @property
+    def is_nominal(self) -> bool:
+        """Nothing beyond v0's parameter factors: the v0 code path, bit for bit."""
+        return (
+            self.conicity is None
+            and self.creep_factor == 1.0
+            and all(getattr(self, n) == 1.0 for n in ("primary_longitudinal_stiffness", "primary_lateral_stiffness",
+                                                      "damper_factor", "axle_load"))  # fmt: skip
+            and bool(np.all(self.actuator_gain == 1.0))
+            and self.failed_actuator is None
+            and self.stuck_actuator is None
+        )
+
+
+def draw_scenario(
+    randomize: Mapping[str, Any], options: Mapping[str, Any], rng: np.random.Generator, active: list[str]
+) -> Scenario:
+    """Draw an episode's scenario from the config's ranges, then apply reset options."""
+    s = Scenario()
+    fault_draw: tuple[float, int, float] | None = None
+    for name, bounds in randomize.items():
+        if name in FIELDS:
+            s.factors[name] = float(rng.uniform(*bounds))
+        elif name == "conicity":
+            s.conicity = float(rng.uniform(*bounds))
+        elif name == "actuator_gain":
+            s.actuator_gain = rng.uniform(*bounds, N_CHANNELS)
+        elif name in RANGES:
+            setattr(s, name, float(rng.uniform(*bounds)))
+        elif name in PROBABILITIES and fault_draw is None:
+            fault_draw = (float(rng.random()), int(rng.integers(max(1, len(active)))), float(rng.uniform(-1.0, 1.0)))
+    if fault_draw is not None and active:
+        u, which, command = fault_draw
+        p_fail = randomize.get("actuator_failure_probability", 0.0)
+        p_stuck = randomize.get("actuator_stuck_probability", 0.0)
+        if u < p_fail:
+            s.failed_actuator = active[which]
+        elif u < p_fail + p_stuck:
+            s.stuck_actuator, s.stuck_command = active[which], command
+    _apply_options(s, options, active)
+    return s
+
+
+def _apply_options(s: Scenario, options: Mapping[str, Any], active: list[str]) -> None:
+    for name in RANGES:
+        if name not in options:
+            continue
+        value = options[name]
+        where = f"reset option {name!r}"
+        r = RANGES[name]
+        if name == "actuator_gain":
+            gains = np.array(s.actuator_gain, dtype=float)
+            if isinstance(value, Mapping):
+                for channel, g in value.items():
+                    if channel not in CHANNEL_NAMES:
+                        raise ConfigError(f"{where}: unknown channel {channel!r}; channels: {', '.join(CHANNEL_NAMES)}")
+                    gains[CHANNEL_NAMES.index(channel)] = _number(f"{where}[{channel!r}]", g, r.low, r.high)
+            else:
+                gains[:] = _number(where, value, r.low, r.high)
+            s.actuator_gain = gains
+        else:
+            setattr(s, name, _number(where, value, r.low, r.high))
+    failed, stuck = options.get("failed_actuator"), options.get("stuck_actuator")
+    if failed is not None and stuck is not None:
+        raise ConfigError("reset options 'failed_actuator' and 'stuck_actuator': give at most one (one faulty actuator)")
+    for key, value in (("failed_actuator", failed), ("stuck_actuator", stuck)):
+        if value is None:
+            continue
+        if value not in active:
+            raise ConfigError(f"reset option {key!r} = {value!r} is not an active channel; active: {', '.join(active) or 'none'}")
+        s.failed_actuator = value if key == "failed_actuator" else None
+        s.stuck_actuator = value if key == "stuck_actuator" else None
+    if "stuck_command" in options:
+        s.stuck_command = _number("reset option 'stuck_command'", options["stuck_command"], -1.0, 1.0)
+
+
+def scenario_model(base: BogieParams, s: Scenario, nominal: BogieModel) -> BogieModel:
+    """The bogie of a scenario (the nominal model itself when nothing changes)."""
+    if not s.factors and s.is_nominal:
+        return nominal
+    factors = dict(s.factors)
+    for name, key in (("primary_longitudinal_stiffness", "Kpx"), ("primary_lateral_stiffness", "Kpy"),
+                      ("axle_load", "Wpa")):  # fmt: skip
+        value = getattr(s, name)
+        if value != 1.0:
+            factors[key] = factors.get(key, 1.0) * value
+    if s.damper_factor != 1.0:
+        for key in ("Csx", "Csy"):
+            factors[key] = factors.get(key, 1.0) * s.damper_factor
+    params = base.scaled(**factors) if factors else base
+    if s.conicity is not None:
+        params = params.replace(lam=s.conicity)
+    if s.creep_factor != 1.0:
+        c = BogieModel(params).coefficients
+        params = params.replace(**{k: c[i] * s.creep_factor for k, i in (("f11", P_F11), ("f12", P_F12),
+                                                                         ("f22", P_F22), ("f33", P_F33))})  # fmt: skip
+    return BogieModel(params)
+
+
+def scenario_health(s: Scenario, channels: np.ndarray) -> np.ndarray:
+    """(3, N_CHANNELS) the row's actuator health (:func:`bogie_env.actuators.healthy_command`)."""
+    h = healthy()
+    h[H_GAIN] = s.actuator_gain
+    if s.failed_actuator is not None:
+        h[H_GAIN, CHANNEL_NAMES.index(s.failed_actuator)] = 0.0
+    if s.stuck_actuator is not None:
+        k = CHANNEL_NAMES.index(s.stuck_actuator)
+        mode = int(channels[k, CH_MODE])
+        a = s.stuck_command
+        h[H_HELD_FORCE, k] = a * channels[k, CH_MAX_FORCE] if mode == MODE_FORCE else 0.0
+        h[H_HELD_DAMPING, k] = (
+            channels[k, CH_C_MIN] + 0.5 * (a + 1.0) * (channels[k, CH_C_MAX] - channels[k, CH_C_MIN]) if mode == MODE_SEMI else 0.0
+        )
+        assert mode != MODE_OFF
+    return h

@@ -1,0 +1,69 @@
+"""The -v0 ids are a reproducibility contract: their trajectories are pinned bitwise.
+
+``tests/data/v0_golden.npz`` was written by this file's ``__main__`` from the code before
+``Bogie/Hunting-v1`` existed (observations, rewards and end states of seeded runs with seeded
+random actions, in the single env and the native vector env). Any change that moves a v0
+trajectory by one bit fails here; such a change belongs in a new env id.
+"""
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import bogie_env  # noqa: F401  (registers the ids)
+
+GOLDEN = Path(__file__).parent / "data" / "v0_golden.npz"
+IDS = ("Bogie/Hunting-v0", "Bogie/HuntingPassive-v0", "Bogie/HuntingSemiActive-v0")
+N_STEPS = 200
+
+
+def single_run(env_id: str) -> dict[str, np.ndarray]:
+    env = gym.make(env_id, config={"large_perturbation_probability": 0.5, "observation": {"noise": 0.01}})
+    actions = np.random.default_rng(7).uniform(-1, 1, (N_STEPS,) + env.action_space.shape)
+    obs, _ = env.reset(seed=3)
+    observations, rewards = [obs], []
+    for a in actions:
+        obs, reward, terminated, truncated, _ = env.step(a)
+        observations.append(obs)
+        rewards.append(reward)
+        if terminated or truncated:
+            obs, _ = env.reset()
+    return {"obs": np.array(observations), "reward": np.array(rewards), "x": env.unwrapped.task.states.copy()}
+
+
+def vector_run(env_id: str) -> dict[str, np.ndarray]:
+    env = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point")
+    actions = np.random.default_rng(8).uniform(-1, 1, (N_STEPS, 3) + env.single_action_space.shape)
+    obs, _ = env.reset(seed=11)
+    observations, rewards = [obs], []
+    for a in actions:
+        obs, reward, *_ = env.step(a)
+        observations.append(obs)
+        rewards.append(reward)
+    return {"obs": np.array(observations), "reward": np.array(rewards), "x": env.unwrapped.task.states.copy()}
+
+
+def runs() -> dict[str, np.ndarray]:
+    out = {}
+    for env_id in IDS:
+        for kind, run in (("single", single_run), ("vector", vector_run)):
+            for key, value in run(env_id).items():
+                out[f"{env_id}|{kind}|{key}"] = value
+    return out
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_v0_trajectories_are_bitwise_unchanged(env_id):
+    golden = np.load(GOLDEN)
+    for kind, run in (("single", single_run), ("vector", vector_run)):
+        for key, value in run(env_id).items():
+            expected = golden[f"{env_id}|{kind}|{key}"]
+            assert value.shape == expected.shape, (env_id, kind, key)
+            assert np.array_equal(value, expected), f"{env_id} {kind} {key} moved (max diff {np.max(np.abs(value - expected))})"
+
+
+if __name__ == "__main__":
+    np.savez_compressed(GOLDEN, **runs())
+    print("wrote", GOLDEN)
