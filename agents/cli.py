@@ -70,12 +70,23 @@ def cmd_tune(args: argparse.Namespace) -> int:
     return 0
 
 
+def _env_variant(env_id: str) -> str | None:
+    """The config variant behind a registered env id (``--env``)."""
+    from bogie_env.envs.registration import IDS
+
+    if env_id not in IDS:
+        raise ConfigError(f"--env {env_id!r} is not a bogie-env id; known ids: {', '.join(IDS)}")
+    return IDS[env_id]
+
+
 @command("evaluate", "the evaluation protocol: closed-loop critical speed, ramp onset, effort, robustness")
 @json_option
 @argument("--out", default=None, help="write the JSON result here as well (atomically)")
 @argument("--parts", default="critical,ramp,effort,robustness", help="which parts of the protocol to run")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
+@argument("--env", default="Bogie/Hunting-v0",
+          help="env id whose task to evaluate on (its variant; --env-config merges into it), e.g. Bogie/Hunting-v1")
 @argument("--trust-policy", action="store_true",
           help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your rights; "
                "use only for files you made or trust (pretrained is checked against its SHA-256 sums instead)")
@@ -91,7 +102,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     check_backend_args(args)
     _check_workers(args)
-    env_config = env_config_from_args(args)
+    env_config = env_config_from_args(args, _env_variant(args.env))
     parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
     allowed = {"critical", "ramp", "effort", "robustness"}
     if not parts or set(parts) - allowed:
@@ -110,7 +121,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                    for spec in args.policy]  # fmt: skip
     for spec, result in zip(args.policy, results):
         result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
-    payload = {"policies": results}
+    payload = {"env_id": args.env, "env_version": args.env.rsplit("-", 1)[-1], "policies": results}
     if args.out:
         write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
     if args.json:

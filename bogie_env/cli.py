@@ -117,11 +117,12 @@ def _json_default(value):
     raise TypeError(f"not JSON serialisable: {type(value)}")
 
 
-def env_config_from_args(args: argparse.Namespace) -> dict:
-    """The env config (``--env-config``) with the bogie preset and ``--set`` overrides folded in."""
+def env_config_from_args(args: argparse.Namespace, variant: str | None = None) -> dict:
+    """The env config (``--env-config``, merged into ``variant``'s) with the bogie preset and
+    ``--set`` overrides folded in."""
     from .envs.config import bogie_params, make_config
 
-    env_config = make_config(args.env_config)
+    env_config = make_config(args.env_config, variant=variant)
     if args.config is None and not args.overrides:
         return env_config
     if args.config is not None:

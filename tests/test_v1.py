@@ -284,3 +284,22 @@ def test_v1_ids_make_and_named_ranges_are_documented():
     for name in list(RANGES) + ["Bogie/HuntingPassive-v1", "alert", "delay_steps", "rate_limit"]:
         assert name in doc, name
     assert gym.make("Bogie/HuntingPassive-v1").unwrapped.task.passive
+
+
+def test_evaluate_names_the_env_it_ran(capsys):
+    import json
+
+    from bogie_agents.cli import main
+
+    assert main(["evaluate", "--env", "Bogie/Hunting-v9", "--policy", "passive", "--parts", "ramp", "--json"]) == 2
+    assert "--env 'Bogie/Hunting-v9' is not a bogie-env id" in capsys.readouterr().err
+    env_config = {"speed": {"start_kmh": 300.0, "end_kmh": 310.0, "accel": 5.0}}
+    import tempfile, yaml  # noqa: E401
+
+    with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as handle:
+        yaml.safe_dump(env_config, handle)
+    assert main(["evaluate", "--env", "Bogie/HuntingPassive-v1", "--env-config", handle.name, "--policy", "passive",
+                 "--parts", "ramp", "--json"]) == 0  # fmt: skip
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["env_id"] == "Bogie/HuntingPassive-v1" and payload["env_version"] == "v1"
+    assert payload["policies"][0]["ramp"]["start_kmh"] == 300.0
