@@ -159,7 +159,7 @@ def test_tune_trial_config_keeps_the_agent_config_and_bounds_the_budget(tmp_path
     from bogie_agents.train import load_run_config
     from bogie_agents.tune import SEARCH_SPACES, task_config, task_id, trial_config, write_best_config
 
-    assert task_id() == "Bogie/Hunting-v0"  # v1 is taken first once it is registered
+    assert task_id() == "Bogie/Hunting-v1"  # the newest registered version
     base = load_run_config(None, "ppo")
     base.pop("source")
     assert set(SEARCH_SPACES["ppo"]) <= set(base["hyperparams"])  # only keys the config already has

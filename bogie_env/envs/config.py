@@ -149,7 +149,7 @@ def validate(config: dict) -> dict:
     c["large_perturbation"] = _number("large_perturbation", c["large_perturbation"], 0.0, 0.03)
     tr = c["track"]
     if tr["level"] is not None:
-        if tr["level"] not in ALIGNMENT_LEVELS:
+        if not isinstance(tr["level"], str) or tr["level"] not in ALIGNMENT_LEVELS:
             raise ConfigError(f"config 'track.level' = {tr['level']!r} is not allowed; allowed: null, {', '.join(ALIGNMENT_LEVELS)}")
         if tr["rms"] is not None:
             raise ConfigError("config 'track.level' and 'track.rms' are both set; set 'track.rms' to null to use a level")
