@@ -113,7 +113,7 @@ def test_default_scan_step_misses_no_crossing(paper_params):
     [
         (["sensitivity", "--param", "Foo"], "unknown parameter 'Foo'"),
         (["sensitivity", "--param", "Csy", "--scales", ""], "empty"),
-        (["sensitivity", "--param", "Csy", "--scales=-0.5,1"], "not allowed; each must be finite and > 0"),
+        (["sensitivity", "--param", "Csy", "--scales=-0.5,1"], "--scales '-0.5,1': every entry must be a finite number > 0"),
         (["sensitivity", "--param", "Csy", "--param", "Csy"], "two different parameters"),
         (["ramp", "--v-start-kmh", "600", "--v-end-kmh", "300"], "inverted"),
         (["root-locus", "--v-min-kmh", "500", "--v-max-kmh", "400"], "inverted"),
