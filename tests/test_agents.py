@@ -12,7 +12,7 @@ from bogie_agents.policies import PRETRAINED_DIR, load_policy, load_sb3_policy
 from bogie_agents.train import load_run_config, train
 from bogie_agents.cli import main as cli_main
 from bogie_env.analysis.bifurcation import nonlinear_critical_speed
-from bogie_env.envs.config import make_config
+from bogie_env.envs.config import make_config, merge_config
 from bogie_env.envs.hunting_env import BogieHuntingEnv
 from bogie_env.params import ConfigError
 from bogie_env.stability import critical_speed
@@ -54,6 +54,19 @@ def test_controllers_respect_the_action_box(env_config, cls):
         obs, *_ = env.step(action)
 
 
+def test_passive_small_perturbation_critical_speed_is_the_linear_one(env_config, paper_model):
+    """The fast version of the next test: a search window around the passive critical speed, and
+    the linear critical speed (eigenvalues) as the oracle; the hunting is subcritical, so the
+    limit cycle persists to a lower speed."""
+    settings = ProtocolSettings(v_min_kmh=330.0, v_max_kmh=380.0, grid_step_kmh=25.0)
+    result = closed_loop_critical_speed(PassiveController(env_config), env_config, {}, settings,
+                                        LimitCycleStarts(env_config))  # fmt: skip
+    linear = critical_speed(paper_model).speed_kmh
+    assert result["from_small_perturbation_kmh"] == pytest.approx(linear, abs=1.5)
+    assert result["from_passive_limit_cycle_kmh"] <= result["from_small_perturbation_kmh"]
+
+
+@pytest.mark.slow
 def test_passive_closed_loop_critical_speed_matches_the_analysis_suite(env_config, paper_model):
     """For the passive bogie, (a) from a small perturbation is the linear critical speed and (a)
     from the limit cycle is the nonlinear one (the fold), each within the protocol's resolution."""
@@ -67,14 +80,17 @@ def test_passive_closed_loop_critical_speed_matches_the_analysis_suite(env_confi
 
 
 def test_evaluation_is_deterministic(env_config):
-    a = evaluate_policy(SkyhookController(env_config), env_config, FAST, parts=("critical", "ramp"))
-    b = evaluate_policy(SkyhookController(env_config), env_config, FAST, parts=("critical", "ramp"))
+    settings = ProtocolSettings(v_min_kmh=300.0, v_max_kmh=500.0, grid_step_kmh=50.0, duration_s=15.0, ramp_seeds=2)
+    config = merge_config(env_config, {"speed": {"accel": 4.0}})  # a 21-s ramp
+    a = evaluate_policy(SkyhookController(config), config, settings, parts=("critical", "ramp"))
+    b = evaluate_policy(SkyhookController(config), config, settings, parts=("critical", "ramp"))
     assert json.dumps(a, default=float) == json.dumps(b, default=float)
 
 
 def test_lqr_beats_passive_by_far(env_config):
-    passive = evaluate_policy(PassiveController(env_config), env_config, FAST, parts=("critical",))
-    lqr = evaluate_policy(LQRController(env_config), env_config, FAST, parts=("critical",))
+    settings = ProtocolSettings(v_max_kmh=600.0, grid_step_kmh=50.0, duration_s=20.0, tol_kmh=5.0)
+    passive = evaluate_policy(PassiveController(env_config), env_config, settings, parts=("critical",))
+    lqr = evaluate_policy(LQRController(env_config), env_config, settings, parts=("critical",))
     assert lqr["closed_loop_critical_speed_kmh"] > passive["closed_loop_critical_speed_kmh"] + 100
 
 
@@ -94,7 +110,7 @@ def _tiny_config(tmp_path, algo="ppo"):
     return load_run_config(path, algo)
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
+@pytest.mark.parametrize("algo", ["ppo", pytest.param("sac", marks=pytest.mark.slow)])
 def test_training_smoke_save_load_and_resume(tmp_path, algo):
     config = _tiny_config(tmp_path, algo)
     out = tmp_path / "run"
