@@ -82,7 +82,8 @@ def _env_variant(env_id: str) -> str | None:
 @command("evaluate", "the evaluation protocol: closed-loop critical speed, ramp onset, effort, robustness")
 @json_option
 @argument("--out", default=None, help="write the JSON result here as well (atomically)")
-@argument("--parts", default="critical,ramp,effort,robustness", help="which parts of the protocol to run")
+@argument("--parts", default="critical,ramp,effort,robustness",
+          help="which parts of the protocol to run; add margins for the stability margins (docs/margins.md)")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
 @argument("--env", default="Bogie/Hunting-v0",
@@ -103,12 +104,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     check_backend_args(args)
     _check_workers(args)
     env_config = env_config_from_args(args, _env_variant(args.env))
-    parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
-    allowed = {"critical", "ramp", "effort", "robustness"}
-    if not parts or set(parts) - allowed:
+    requested = tuple(p.strip() for p in args.parts.split(",") if p.strip())
+    allowed = {"critical", "ramp", "effort", "robustness", "margins"}
+    if not requested or set(requested) - allowed:
         raise ConfigError(f"--parts {args.parts!r}: allowed parts are {', '.join(sorted(allowed))}")
+    parts = tuple(p for p in requested if p != "margins")  # margins: bogie margins' table, beside the protocol
     settings = ProtocolSettings(seed=args.seed)
-    if args.backend == "ray":  # one task per controller and part (docs/distributed.md)
+    if not parts:
+        results = [{} for _ in args.policy]
+    elif args.backend == "ray":  # one task per controller and part (docs/distributed.md)
         from .evaluation_tasks import evaluate_many
 
         for spec in args.policy:
@@ -121,6 +125,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                    for spec in args.policy]  # fmt: skip
     for spec, result in zip(args.policy, results):
         result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
+        if "margins" in requested:
+            from .margins import margins_table
+
+            result["margins"] = margins_table(load_policy(spec, env_config, args.trust_policy), env_config)
     payload = {"env_id": args.env, "env_version": args.env.rsplit("-", 1)[-1], "policies": results}
     if args.out:
         write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
@@ -137,6 +145,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                          f"search {r['protocol']['search_kmh'][0]:g}-{r['protocol']['search_kmh'][1]:g} km/h)")  # fmt: skip
             if "ramp" in r:
                 line += f"; ramp reached {r['ramp']['mean_reached_kmh']} km/h (hunted {r['ramp']['hunted']}/{len(r['ramp']['seeds'])})"
+            if "margins" in r:
+                m = r["margins"]
+                line += (f"; margins over {m['speeds_kmh'][0]:g}-{m['speeds_kmh'][-1]:g} km/h: "
+                         + (f"unstable at {m['unstable_at_kmh']} km/h" if m["unstable_at_kmh"] else
+                            f"gain {m['gain_margin']}, delay {m['delay_margin_s']} s"))  # fmt: skip
             print(line)
     return 0
 

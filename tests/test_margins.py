@@ -241,3 +241,23 @@ def test_cli_margins_json(capsys, tmp_path):
     assert set(loops) == {"frame_lateral", "frame_yaw", "wheelset1_yaw", "wheelset2_yaw"}
     assert margins["gain_margin"] == min(v["gain_margin"] for v in loops.values() if v["gain_margin"] is not None)
     assert json.loads(out.read_text()) == payload
+
+
+def test_evaluate_can_report_margins(capsys):
+    code = cli_main(["evaluate", "--policy", "passive", "--parts", "margins", "--json"])
+    assert code == 0
+    entry = json.loads(capsys.readouterr().out)["policies"][0]
+    assert entry["policy"] == "passive"
+    assert entry["margins"]["unstable_at_kmh"] == [400.0, 450.0, 500.0]  # passive hunts above 356 km/h
+    assert entry["margins"]["gain_margin"] is None
+
+
+def test_passive_loop_loses_stability_at_the_linear_critical_speed(env_config, model):
+    """The sampled loop's eigenvalues (exact ZOH, actuator lags) against bogie_env.stability's
+    continuous eigenvalue search: the same crossing."""
+    from bogie_env.stability import critical_speed
+
+    v_cr = critical_speed(model).speed_kmh
+    passive = PassiveController(env_config)
+    assert M.linear_loop(passive, env_config, v_cr - 0.2, model=model).growth_rate() < 0
+    assert M.linear_loop(passive, env_config, v_cr + 0.2, model=model).growth_rate() > 0
