@@ -180,8 +180,10 @@ def cmd_margins(args: argparse.Namespace) -> int:
         speeds = [float(v) for v in args.speeds.split(",") if v.strip()]
     except ValueError:
         raise ConfigError(f"--speeds {args.speeds!r} must be comma-separated numbers (km/h)") from None
-    if not speeds:
-        raise ConfigError("--speeds must name at least one speed (km/h)")
+    from bogie_env.envs.config import MAX_SPEED_KMH, MIN_SPEED_KMH
+
+    if not speeds or not all(MIN_SPEED_KMH <= v <= MAX_SPEED_KMH for v in speeds):  # False for NaN
+        raise ConfigError(f"--speeds {args.speeds!r}: give one or more speeds in [{MIN_SPEED_KMH:g}, {MAX_SPEED_KMH:g}] km/h")
     results = []
     for spec in args.policy:
         results.append({"policy": spec, "margins": margins_table(load_policy(spec, env_config, args.trust_policy), env_config, speeds)})

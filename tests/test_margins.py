@@ -261,3 +261,9 @@ def test_passive_loop_loses_stability_at_the_linear_critical_speed(env_config, m
     passive = PassiveController(env_config)
     assert M.linear_loop(passive, env_config, v_cr - 0.2, model=model).growth_rate() < 0
     assert M.linear_loop(passive, env_config, v_cr + 0.2, model=model).growth_rate() > 0
+
+
+@pytest.mark.parametrize("speeds", ["", "abc", "nan", "1e9", "300,-5"])
+def test_cli_margins_bad_speeds_are_named(capsys, speeds):
+    assert cli_main(["margins", "--policy", "passive", "--speeds", speeds]) == 2
+    assert "--speeds" in capsys.readouterr().err
