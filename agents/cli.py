@@ -66,7 +66,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
     summary = tune_agent(args.algo, args.out, args.trials, args.timesteps, args.trial_time_s, args.episodes, args.config,
                          args.write_config, args.address, args.concurrent, args.seed, args.n_envs)  # fmt: skip
-    print_json({key: summary[key] for key in ("algo", "env_id", "experiment", "restored", "trials_finished", "best", "config")})
+    print_json({key: summary[key] for key in ("algo", "env_id", "experiment", "restored", "trials_finished", "interrupted",
+                                              "best", "config")})  # fmt: skip
+    if summary["interrupted"]:
+        print(f"bogie tune: interrupted; rerun the same command to resume {summary['experiment']}", file=sys.stderr)
+        return 130
     return 0
 
 

@@ -36,7 +36,7 @@ import yaml
 from bogie_env.params import CONFIG_DIR, ConfigError
 
 from .policies import NORMALISATION_FILE, apply_normalisation, load_normalisation
-from .train import load_run_config, train, write_json_atomic
+from .train import load_run_config, train, validate_run_config, write_json_atomic
 
 TASK_IDS = ("Bogie/Hunting-v1", "Bogie/Hunting-v0")  # newest first
 METRIC = "mean_return"
@@ -156,10 +156,22 @@ def run_trial(hyperparams: dict, base: dict, out: str, timesteps: int, trial_tim
     folder = Path(out) / "trials" / tune.get_context().get_trial_id()
     config = trial_config(base, hyperparams, timesteps, trial_time_s)
     started = time.time()
-    summary = train(config, folder, resume=True, progress_bar=False)
+    summary = _finished(folder, timesteps)  # trained before an interruption: only the score is missing
+    if summary is None:
+        summary = train(config, folder, resume=True, progress_bar=False)
     value = score(folder, config, episodes, int(config.get("seed", 0)))
     tune.report({METRIC: value, "timesteps": summary["timesteps"], "trial_wall_time_s": round(time.time() - started, 1),
                  "run_dir": str(folder)})  # fmt: skip
+
+
+def _finished(folder: Path, timesteps: int) -> dict | None:
+    """The trial's training summary if its final model reached the budget, else None."""
+    try:
+        summary = json.loads((folder / "progress.json").read_text())
+    except (OSError, ValueError):
+        return None
+    done = (folder / "final_model.zip").is_file() and int(summary.get("timesteps", 0)) >= timesteps
+    return summary if done else None
 
 
 def check_budget(trials: int, timesteps: int, trial_time_s: float | None, episodes: int) -> None:
@@ -193,6 +205,10 @@ def tune_agent(
     base["seed"] = seed
     if n_envs is not None:
         base["n_envs"] = int(n_envs)
+        hyper = base.get("hyperparams") or {}
+        if base["algo"] == "ppo" and "batch_size" in hyper:  # a minibatch is at most one rollout
+            hyper["batch_size"] = min(int(hyper["batch_size"]), int(hyper.get("n_steps", 2048)) * base["n_envs"])
+    validate_run_config(trial_config(base, {}, timesteps, trial_time_s), where="bogie tune trial config")
     env_id = task_id()
     base = task_config(base, env_id)
     out = Path(out).resolve()
@@ -228,14 +244,18 @@ def tune_agent(
         if result.metrics and METRIC in result.metrics:
             rows.append({"hyperparams": _plain(result.config), METRIC: result.metrics[METRIC],
                          "timesteps": result.metrics.get("timesteps"), "run_dir": result.metrics.get("run_dir")})  # fmt: skip
+    errors = [str(r.error) for r in results if r.error]
     if not rows:
-        errors = [str(r.error) for r in results if r.error]
-        raise RuntimeError(f"no trial of {out} finished; errors: {errors[:3]}")
+        if errors:
+            raise RuntimeError(f"no trial of {out} finished; errors: {errors[:3]}")
+        return {"algo": algo, "env_id": env_id, "experiment": str(experiment), "restored": restored, "trials_finished": 0,
+                "interrupted": True, "best": None, "config": None, "trials": []}  # fmt: skip
     best = max(rows, key=lambda row: row[METRIC])
     target = Path(write_config) if write_config else CONFIG_DIR / "agents" / f"{algo}_tuned.yaml"
     written = write_best_config(base, best, target, env_id, len(rows), out)
     summary = {"algo": algo, "env_id": env_id, "experiment": str(experiment), "restored": restored,
-               "trials_finished": len(rows), "best": best, "config": str(written), "trials": rows}  # fmt: skip
+               "trials_finished": len(rows), "interrupted": len(rows) + len(errors) < max(len(results), 0 if restored else trials),
+               "best": best, "config": str(written), "trials": rows}  # fmt: skip
     write_json_atomic(out / "best.json", summary)
     return summary
 

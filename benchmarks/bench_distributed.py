@@ -118,18 +118,21 @@ def bench_project(args) -> dict:
     measured = json.loads(Path(args.overhead_json).read_text())
     point_s, task_s = measured["s_per_point_one_core"], measured["ray_s_per_empty_task_2cpus"] * 2  # a task's CPU time
     driver_s, init_s = measured["ray_s_per_empty_task_2cpus"], args.init_s
-    out = {"benchmark": "projection", "nodes": args.nodes, "cpus_per_node": args.cpus_per_node, "point_s": point_s,
+    out = {"benchmark": "projection", "workers": args.nodes * args.cpus_per_node, "nodes": args.nodes, "cpus_per_node": args.cpus_per_node, "point_s": point_s,
            "task_s": task_s, "driver_s": driver_s, "init_s": init_s, "studies": []}  # fmt: skip
     workers = args.nodes * args.cpus_per_node
+    # overhead stops mattering once a chunk's work is >= 10 x task_s (< 10 % per task) and the
+    # driver hands out tasks as fast as the workers finish them: chunk work >= workers x driver_s
+    out["chunk_work_s_where_overhead_stops_mattering"] = round(max(10 * task_s, workers * driver_s), 3)
     for points in (POINTS, 21 * 21 * 36 * 16, 10**7):
         rows = []
         for chunk in (1, 4, 16, 64, 256, 1024, 4096, 16384):
             if chunk > points:
                 continue
             makespan = simulate(points, chunk, workers, point_s, task_s, driver_s, init_s)
-            ideal = init_s + points * point_s / workers
-            rows.append({"chunk": chunk, "tasks": -(-points // chunk), "makespan_s": round(makespan, 2),
-                         "efficiency": round(ideal / makespan, 3)})  # fmt: skip
+            ideal = points * point_s / workers  # perfect division of the work, no overhead
+            rows.append({"chunk": chunk, "tasks": -(-points // chunk), "chunk_work_s": round(chunk * point_s, 4),
+                         "makespan_s": round(makespan, 2), "compute_efficiency": round(ideal / (makespan - init_s), 3)})  # fmt: skip
         out["studies"].append({"points": points, "one_core_s": round(points * point_s, 1), "rows": rows})
     return out
 

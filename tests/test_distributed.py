@@ -205,7 +205,7 @@ def test_tune_two_trials_write_a_trainable_config_and_restore(ray_cluster, tmp_p
     kwargs = dict(trials=2, timesteps=2048, trial_time_s=120.0, episodes=1, write_config=tmp_path / "ppo_tuned.yaml",
                   n_envs=8, concurrent=2)  # fmt: skip
     summary = tune_agent("ppo", tmp_path / "exp", **kwargs)
-    assert summary["trials_finished"] == 2 and not summary["restored"]
+    assert summary["trials_finished"] == 2 and not summary["restored"] and not summary["interrupted"]
     assert len({json.dumps(t["hyperparams"], sort_keys=True) for t in summary["trials"]}) == 2
     config = load_run_config(tmp_path / "ppo_tuned.yaml", "ppo")
     assert config["hyperparams"]["learning_rate"] == summary["best"]["hyperparams"]["learning_rate"]
