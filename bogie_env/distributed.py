@@ -54,15 +54,16 @@ def require_ray():
 
 
 def init_ray(address: str | None = None, num_cpus: int | None = None):
-    """Connect to a cluster (``address``) or start a local one with ``num_cpus`` CPUs (default: all).
+    """Connect to a cluster (``address``: ``"auto"`` or ``HOST:PORT``) or start a new local one
+    with ``num_cpus`` CPUs (default: all).
 
     A connection this process already has is reused as it is."""
     ray = require_ray()
     if not ray.is_initialized():
         # workers' output stays in Ray's session logs; a task's exception still reaches ray.get
         kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": "ERROR", "log_to_driver": False}
-        if address is None:
-            kwargs["num_cpus"] = num_cpus
+        if address is None:  # a new private cluster, even if `ray start` runs one on this machine
+            address, kwargs["num_cpus"] = "local", num_cpus
         ray.init(address=address, **kwargs)
     return ray
 
