@@ -158,7 +158,7 @@ def advance_rows(start, stop, rows, channels, track, dt, n_sub):
 
 @njit(cache=True, fastmath=FASTMATH)
 def _advance_serial(rows, channels, track, dt, n_sub):
-    advance_rows(0, rows[0].shape[0], rows, channels, track, dt, n_sub)
+    advance_rows(np.int64(0), rows[0].shape[0], rows, channels, track, dt, n_sub)  # int64, not Literal[0]: one compiled signature
 
 
 @njit(cache=True, fastmath=FASTMATH, parallel=True)
@@ -189,7 +189,7 @@ def _run(rows, channels, track, dt, n_sub, n_steps, record_every, states_out, sp
             states_out[n_rec] = x
             speeds_out[n_rec] = motion[:, M_SPEED]
             n_rec += 1
-        advance_rows(0, x.shape[0], rows, channels, track, dt, n_sub)
+        advance_rows(np.int64(0), x.shape[0], rows, channels, track, dt, n_sub)  # int64, not Literal[0]: one compiled signature
         for n in range(x.shape[0]):
             if status[n] != STATUS_OK:
                 return n_rec

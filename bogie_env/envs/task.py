@@ -269,7 +269,8 @@ def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, action, task_r
     returns -1, or the flat index of a non-finite action (nothing stepped)."""
     bad = _clip_actions(action_in, action)
     if bad < 0:
-        _step_rows(0, action.shape[0], sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health)
+        _step_rows(np.int64(0), action.shape[0], sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales,
+                   health)  # int64 as in the parallel loop: one compiled signature
     return bad
 
 
