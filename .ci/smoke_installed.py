@@ -43,20 +43,18 @@ if mode == "env":
     assert done.returncode == 2 and "bogie-env[agents]" in done.stderr, (done.returncode, done.stderr)
     print(f"installed env OK: critical speed {result['critical_speed_kmh']:.1f} km/h from {result['config']}")
 elif mode == "agents":
+    import gymnasium as gym
     import numpy as np
 
     from bogie_agents.policies import load_policy
-    from bogie_env.envs.config import make_config
-    from bogie_env.envs.core import HuntingTask
 
-    config = make_config()
-    policy = load_policy("pretrained", config)
-    task = HuntingTask(1, config)
-    task.seed_rows(np.array([0]), [0])
-    task.reset_rows(np.array([0]))
+    env = gym.make("Bogie/Hunting-v0")
+    policy = load_policy("pretrained", env.unwrapped.config)
+    obs, _ = env.reset(seed=0)
     policy.reset(1)
-    action = policy.act(task.obs)
+    action = np.asarray(policy.act(obs[None]))
     assert action.shape == (1, 4) and np.all(np.isfinite(action)), action
+    env.step(action[0])
     print("installed agents OK: the pretrained policy loads and acts")
 else:
     raise SystemExit(f"unknown mode {mode!r}; use env or agents")
