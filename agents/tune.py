@@ -114,14 +114,18 @@ def trial_config(base: dict, hyperparams: dict, timesteps: int, trial_time_s: fl
     config["max_wall_time_s"] = trial_time_s
     config["checkpoint"] = {"freq_steps": max(config["n_envs"], timesteps // 4)}
     config["eval"] = {**(config.get("eval") or {}), "freq_steps": 10 * timesteps}  # scored once, at the end
-    hyper = config["hyperparams"]
-    if config["algo"] == "ppo":
-        # A trial may run fewer envs than the base config: the minibatch must fit in one rollout.
-        rollout = int(hyper.get("n_steps", 2048)) * int(config["n_envs"])
-        if "batch_size" in hyper:
-            hyper["batch_size"] = min(int(hyper["batch_size"]), rollout)
-    else:
+    if config["algo"] != "ppo":
+        hyper = config["hyperparams"]
         hyper["learning_starts"] = min(int(hyper.get("learning_starts", 0)), timesteps // 4)
+    return fit_minibatch(config)
+
+
+def fit_minibatch(config: dict) -> dict:
+    """PPO's minibatch capped at one rollout (n_steps x n_envs), in place: ``bogie tune --n-envs``
+    may run fewer envs than the agent config was written for."""
+    hyper = config["hyperparams"]
+    if config["algo"] == "ppo" and "batch_size" in hyper:
+        hyper["batch_size"] = min(int(hyper["batch_size"]), int(hyper.get("n_steps", 2048)) * int(config["n_envs"]))
     return config
 
 
@@ -264,6 +268,7 @@ def write_best_config(base: dict, best: dict, path: Path, env_id: str, n_trials:
     """The agent config with the best hyperparameters, as YAML, checked by ``bogie train``'s loader."""
     config = copy.deepcopy(base)
     config["hyperparams"] = {**(config.get("hyperparams") or {}), **best["hyperparams"]}
+    fit_minibatch(config)
     header = (f"# written by bogie tune: best of {n_trials} trials on {env_id}, {METRIC} "
               f"{best[METRIC]:.4g} after {best['timesteps']} steps per trial (experiment: {experiment})\n")  # fmt: skip
     path.parent.mkdir(parents=True, exist_ok=True)
