@@ -6,10 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from bogie_env.actuators import CH_DECAY_RATE, DAMPING, FORCE, channel_table
+from bogie_env.actuators import CH_DECAY_RATE, DAMPING, FORCE, N_CHANNELS, channel_table
 from bogie_env.dynamics import state_index
 from bogie_env.integrate import STATUS_NONFINITE, STATUS_OK, reference_solution, rk4_amplification, stable_substep
 from bogie_env.simulator import BatchSimulator
+
+
+def per_channel(values):
+    """Values for the four original channels, zero for any channel added since."""
+    return np.concatenate([values, np.zeros(N_CHANNELS - len(values))])
 
 
 def run_fixed(model, x0, speed, t_end, dt, n_sub, accel=0.0, n_rows=1, f_start=None, f_target=None,
@@ -99,10 +104,10 @@ def test_actuator_lag_is_exact_first_order(paper_model):
     """Force channels follow F(t) = F* + (F0 - F*) exp(-t/tau) exactly."""
     tau = 1 / (2 * math.pi * 10.0)
     x0 = paper_model.equilibrium(100.0)
-    target = np.array([[5e3, 0.0, 0.0, 0.0]])
+    target = per_channel([5e3, 0.0, 0.0, 0.0])[None, :]
     dt = 0.01
     *_, u, power, status = run_fixed(paper_model, x0, 100.0, dt, dt, 3, f_target=target,
-                                     decay=np.full(4, 1 / tau))
+                                     decay=np.full(N_CHANNELS, 1 / tau))
     assert status[0] == STATUS_OK
     assert u[0, 0] == pytest.approx(5e3 * (1 - math.exp(-dt / tau)), rel=1e-12)
 
@@ -111,7 +116,7 @@ def test_semi_active_damper_only_dissipates(paper_model):
     x0 = perturbed(paper_model, 100.0)
     x0[state_index("dyb")] = 0.05
     x0[state_index("dpsi1")] = 0.05
-    damping = np.array([[2e4, 1e4, 5e3, 5e3]])
+    damping = per_channel([2e4, 1e4, 5e3, 5e3])[None, :]
     for _ in range(3):
         x, *_, u, power, status = run_fixed(paper_model, x0, 100.0, 0.01, 0.01, 3, c_start=damping,
                                             c_target=damping)
@@ -148,7 +153,7 @@ def test_one_interval_equals_a_python_rk4_with_track_and_actuators(paper_model):
 
     track = TrackInput(alignment_profile(2e-3, 3.0, 80.0, seed=4))
     tau, dt, n_sub, v0, accel, s0 = 0.02, 0.01, 2, 95.0, 1.5, 1234.5
-    target = np.array([3e3, -2e3, 1e3, 4e3])
+    target = per_channel([3e3, -2e3, 1e3, 4e3])
     sim = BatchSimulator(paper_model, 1, dt, (90.0, 100.0), track=track, lag_tau=tau, n_sub=n_sub)
     x0 = perturbed(paper_model, v0)
     sim.set_rows(0, x0, v0, accel, distance=s0)
