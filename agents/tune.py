@@ -209,9 +209,7 @@ def tune_agent(
     base["seed"] = seed
     if n_envs is not None:
         base["n_envs"] = int(n_envs)
-        hyper = base.get("hyperparams") or {}
-        if base["algo"] == "ppo" and "batch_size" in hyper:  # a minibatch is at most one rollout
-            hyper["batch_size"] = min(int(hyper["batch_size"]), int(hyper.get("n_steps", 2048)) * base["n_envs"])
+        fit_minibatch(base)
     validate_run_config(trial_config(base, {}, timesteps, trial_time_s), where="bogie tune trial config")
     env_id = task_id()
     base = task_config(base, env_id)
