@@ -43,7 +43,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
 
 from bogie_env.actuators import CH_DELAY_STEPS, CHANNEL_NAMES, FORCE, channel_table, force_matrix
 from bogie_env.dynamics import N_INPUTS, N_STATES, BogieModel, state_index
@@ -52,6 +51,8 @@ from bogie_env.envs.config import bogie_params, merge_config
 from bogie_env.envs.task import STATE_SCALES
 from bogie_env.params import ConfigError
 from bogie_env.stability import KMH
+
+from .controllers import discretize
 
 CHANNELS = CHANNEL_NAMES
 #: The speeds of the margins table, km/h.
@@ -170,16 +171,6 @@ def _observation_jacobian(x_eq, force_eq, speed, config, model) -> np.ndarray:
         jac[T.SENSOR_FRAME_LATERAL_ACCEL, :N_STATES] = j_x[row] / T.ACCEL_SCALE
         jac[T.SENSOR_FRAME_LATERAL_ACCEL, N_STATES:] = b_u[row] / T.ACCEL_SCALE
     return jac
-
-
-def discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretisation (block exponential)."""
-    n, m = b.shape
-    block = np.zeros((n + m, n + m))
-    block[:n, :n] = a
-    block[:n, n:] = b
-    e = expm(block * dt)
-    return e[:n, :n], e[:n, n:]
 
 
 def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = None,
