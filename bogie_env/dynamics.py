@@ -21,10 +21,15 @@ Two inputs extend the paper's model without changing it when zero:
 - ``inputs`` (N, 4): generalised forces on frame lateral (N), frame yaw (N m) and the yaw
   of wheelsets 1 and 2 (N m). Actuators act on the physics only through this term; an
   actuator between a wheelset and the frame puts its reaction into the frame yaw entry.
-- ``track`` (N, 2): lateral track (alignment) displacement under each wheelset (m). The
-  rolling radii, gravitational terms and flange contact use the wheelset displacement
-  relative to the track; creepages use absolute velocities, which is exact for a rail at
-  rest (the slip velocity does not depend on where the rail is).
+- ``track`` (N, N_TRACK): the track samples named by :data:`bogie_env.track.TRACK_SAMPLES`.
+  The lateral alignment under each wheelset (m): the rolling radii, gravitational terms and
+  flange contact use the wheelset displacement relative to the track; creepages use
+  absolute velocities, which is exact for a rail at rest (the slip velocity does not depend
+  on where the rail is). The curvature (1/m) and cant angle (rad) under each wheelset and
+  the frame: the states are then measured in the track-following axes of each body (lateral
+  from the local centreline, yaw from the local tangent), and the curving terms of
+  ``docs/model.md`` Section 11 (Eqs. C1-C9) enter. With zero curvature and cant every
+  curving term is an exact zero, so straight-track results are bitwise unchanged.
 """
 
 from __future__ import annotations
@@ -34,10 +39,15 @@ from numba import njit, prange
 
 from .contact import CreepCoefficients, _flange, _saturation, creep_coefficients
 from .params import BogieParams
+from .track import (
+    ALIGNMENT_WHEELSET1, CANT_FRAME, CANT_WHEELSET1, CURVATURE_FRAME, CURVATURE_WHEELSET1, N_TRACK_SAMPLES,
+)  # fmt: skip
 
 N_STATES = 20
 N_INPUTS = 4
-N_TRACK = 2
+N_TRACK = N_TRACK_SAMPLES
+#: Gravity (m/s^2) for the cant's share of the lateral balance and the car-body mass (Eq. C3).
+GRAVITY = 9.81
 
 STATE_NAMES: tuple[str, ...] = (
     "y1", "dy1", "z1", "dz1", "psi1", "dpsi1", "phi1", "dphi1",
@@ -104,13 +114,13 @@ def coefficient_vector(params: BogieParams, creep: CreepCoefficients | None = No
 # complex-step Jacobian runs the very same code; branches compare real parts.
 # ---------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
-def _wheel_rail_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, p):
-    """Wheel-rail forces on one wheelset, summed over both wheels, in track axes.
+def _creep(y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p):
+    """Creepages and saturated creep forces of both wheels of one wheelset, in contact axes.
 
-    Returns (lateral force, vertical force, yaw moment, roll moment): creep forces and spin
-    moments (Eqs. 16-30), normal forces (Eqs. 37-39) with the contact positions (Eqs. 31-36),
-    and the flange force (Eq. 46). The lateral force is EN 14363's sum of guiding forces.
-    ``y_rel`` is the displacement relative to the track.
+    Returns (xi_x_left, xi_y_left, xi_sp_left, xi_x_right, xi_y_right, xi_sp_right,
+    fx_left, fy_left, mz_left, fx_right, fy_right, mz_right): creepages after Eq. (30) with the
+    curvature ``kappa`` of the track under the wheelset (Eq. C5: the wheelset's absolute yaw rate
+    is dpsi + V kappa), Kalker's linear creep and the saturation of Eqs. (26)-(30).
     """
     e = p[P_E]
     r0 = p[P_R0]
@@ -124,13 +134,13 @@ def _wheel_rail_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, p):
     # Eq. (15): conical wheels, contact angle lam, rolling radii.
     r_left = r0 + lam * y_rel
     r_right = r0 - lam * y_rel
-    # Creepages (after Eq. 30).
-    xi_x_left = -lam * y_rel / r0 - e * dpsi * inv_v
-    xi_x_right = lam * y_rel / r0 + e * dpsi * inv_v
+    # Creepages (after Eq. 30), with the curving terms of Eq. (C5).
+    xi_x_left = -lam * y_rel / r0 - e * dpsi * inv_v - e * kappa
+    xi_x_right = lam * y_rel / r0 + e * dpsi * inv_v + e * kappa
     xi_y_left = (dy + r_left * dphi) * inv_v - psi
     xi_y_right = (dy + r_right * dphi) * inv_v - psi
-    xi_sp_left = dpsi * inv_v - lam / r0
-    xi_sp_right = dpsi * inv_v + lam / r0
+    xi_sp_left = dpsi * inv_v - lam / r0 + kappa
+    xi_sp_right = dpsi * inv_v + lam / r0 + kappa
     # Kalker linear creep in the contact frame (Eqs. 29-30 and the spin moment).
     fx_left = -f33 * xi_x_left
     fy_left = -f11 * xi_y_left - f12 * xi_sp_left
@@ -148,6 +158,23 @@ def _wheel_rail_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, p):
     fx_right = alpha * fx_right
     fy_right = alpha * fy_right
     mz_right = alpha * mz_right
+    return (xi_x_left, xi_y_left, xi_sp_left, xi_x_right, xi_y_right, xi_sp_right,
+            fx_left, fy_left, mz_left, fx_right, fy_right, mz_right)  # fmt: skip
+
+
+@njit(cache=True, inline="always")
+def _wheel_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p):
+    """Forces of the rails on each wheel of one wheelset, in track axes.
+
+    Returns (Fx_l, Fy_l, Fz_l, Mx_l, mz_l, Fx_r, Fy_r, Fz_r, Mx_r, mz_r, Ny_l, Ny_r, flange):
+    creep forces and spin moments (Eqs. 16-25), the normal forces' lateral components
+    (Eqs. 37-39) and the flange force (Eq. 46, acting on the left wheel when positive).
+    """
+    lam = p[P_LAM]
+    half_w = 0.5 * p[P_WPA]
+    (_, _, _, _, _, _, fx_left, fy_left, mz_left, fx_right, fy_right, mz_right) = _creep(
+        y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p
+    )
     # Creep forces and moments in track axes (Eqs. 16-25).
     incl_left = lam + phi  # contact-plane inclination, left
     incl_right = lam - phi
@@ -162,6 +189,28 @@ def _wheel_rail_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, p):
     # Normal forces (Eqs. 37-39); their vertical components cancel the axle load in Eq. (4).
     Ny_l = -half_w * incl_left
     Ny_r = half_w * incl_right
+    flange = _flange(y_rel, p[P_DELTA], p[P_KR])  # Eq. (46)
+    return Fx_l, Fy_l, Fz_l, Mx_l, mz_left, Fx_r, Fy_r, Fz_r, Mx_r, mz_right, Ny_l, Ny_r, flange
+
+
+@njit(cache=True, inline="always")
+def _wheel_rail_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p):
+    """Wheel-rail forces on one wheelset, summed over both wheels, in track axes.
+
+    Returns (lateral force, vertical force, yaw moment, roll moment): creep forces and spin
+    moments (Eqs. 16-30), normal forces (Eqs. 37-39) with the contact positions (Eqs. 31-36),
+    and the flange force (Eq. 46). The lateral force is EN 14363's sum of guiding forces.
+    ``y_rel`` is the displacement relative to the track, ``kappa`` the track's curvature.
+    """
+    e = p[P_E]
+    r0 = p[P_R0]
+    lam = p[P_LAM]
+    half_w = 0.5 * p[P_WPA]
+    r_left = r0 + lam * y_rel
+    r_right = r0 - lam * y_rel
+    (Fx_l, Fy_l, Fz_l, Mx_l, mz_left, Fx_r, Fy_r, Fz_r, Mx_r, mz_right, Ny_l, Ny_r, flange) = _wheel_forces(
+        y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p
+    )
     # Contact-point positions (Eqs. 31-36).
     Rx_l = -e * psi
     Ry_l = e + r_left * phi
@@ -169,7 +218,6 @@ def _wheel_rail_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, p):
     Rx_r = e * psi
     Ry_r = -e + r_right * phi
     Rz_r = -e * phi - r_right
-    flange = _flange(y_rel, p[P_DELTA], p[P_KR])  # Eq. (46)
     lateral = Fy_l + Fy_r + Ny_l + Ny_r - flange
     vertical = Fz_l + Fz_r
     yaw = (Rx_r * Fy_r - Ry_r * Fx_r) + (Rx_l * Fy_l - Ry_l * Fx_l) + (Rx_r * Ny_r + Rx_l * Ny_l) + mz_left + mz_right
@@ -202,6 +250,10 @@ def _rhs_row(x, V, Q, yt, p, out):
     dyb = x[17]
     psib = x[18]
     dpsib = x[19]
+    # Curving (docs/model.md Section 11): the frame's track curvature and unbalanced
+    # acceleration (Eq. C1); exact zeros on straight track without cant.
+    kappa_b = yt[CURVATURE_FRAME]
+    accel_b = V * V * kappa_b * np.cos(yt[CANT_FRAME]) - GRAVITY * np.sin(yt[CANT_FRAME])
     frame_force = 0.0 * yb
     frame_moment = 0.0 * yb
     for i in range(2):
@@ -210,14 +262,25 @@ def _rhs_row(x, V, Q, yt, p, out):
         dpsi = x[o + 5]
         dphi = x[o + 7]
         side = 1.0 - 2.0 * i  # +1 front (x = +L1), -1 rear
-        lateral, vertical, yaw, roll = _wheel_rail_forces(x[o] - yt[i], dy, x[o + 4], dpsi, x[o + 6], dphi, inv_v, p)
-        # Suspension (Eqs. 40-43, corrected).
-        spring_y = Kpy2 * (x[o] - yb - side * L1 * psib)
-        damper_y = Cpy2 * (dy - dyb - side * L2 * dpsib)
-        yaw_moment = yaw_k * (x[o + 4] - psib) + yaw_c * (dpsi - dpsib)
-        # Eq. (3) lateral
+        kappa = yt[CURVATURE_WHEELSET1 + i]
+        accel = V * V * kappa * np.cos(yt[CANT_WHEELSET1 + i]) - GRAVITY * np.sin(yt[CANT_WHEELSET1 + i])  # Eq. (C1)
+        # The wheelset's track axes seen from the frame's (Eqs. C6-C7, trapezoidal in curvature):
+        # heading, lateral offset of the centreline, and their rates.
+        d = side * L1
+        heading = 0.5 * d * (kappa_b + kappa)
+        offset = d * d * (2.0 * kappa_b + kappa) / 6.0
+        heading_rate = V * (kappa - kappa_b)
+        offset_rate = V * (heading - d * kappa_b)
+        lateral, vertical, yaw, roll = _wheel_rail_forces(
+            x[o] - yt[ALIGNMENT_WHEELSET1 + i], dy, x[o + 4], dpsi, x[o + 6], dphi, inv_v, kappa, p
+        )
+        # Suspension (Eqs. 40-43, corrected; Eq. C8 in curves).
+        spring_y = Kpy2 * (x[o] + offset - yb - side * L1 * psib)
+        damper_y = Cpy2 * (dy + offset_rate - dyb - side * L2 * dpsib)
+        yaw_moment = yaw_k * (x[o + 4] + heading - psib) + yaw_c * (dpsi + heading_rate - dpsib)
+        # Eq. (3) lateral, with the unbalanced acceleration (Eq. C2)
         out[o] = dy
-        out[o + 1] = (lateral - spring_y - damper_y) / mw
+        out[o + 1] = (lateral - spring_y - damper_y) / mw - accel
         # Eq. (4) vertical
         out[o + 2] = x[o + 3]
         out[o + 3] = (vertical - 2.0 * p[P_KPZ] * x[o + 2] - 2.0 * p[P_CPZ] * x[o + 3]) / mw
@@ -227,6 +290,7 @@ def _rhs_row(x, V, Q, yt, p, out):
         # Eq. (6) roll, with the secondary-suspension moment of Eq. (43)
         m_roll = (
             gyro * dpsi
+            + gyro * V * kappa  # Eq. (C5): the absolute yaw rate includes V kappa
             + roll
             - 2.0 * p[P_KSY] * p[P_H_KSY] * yb
             - 2.0 * p[P_CSY] * p[P_H_CSY] * dyb
@@ -238,9 +302,14 @@ def _rhs_row(x, V, Q, yt, p, out):
         # Reactions on the frame (Eqs. 44-45).
         frame_force += spring_y + damper_y
         frame_moment += side * (L1 * spring_y + L2 * damper_y) + yaw_moment
-    # Eqs. (1)-(2) with (44)-(45): frame on the secondary suspension to a fixed car body.
+    # Eqs. (1)-(2) with (44)-(45): frame on the secondary suspension to a car body that
+    # follows the track; in curves the frame and the car body's share carry the unbalanced
+    # acceleration (Eqs. C2-C3).
+    carried = 2.0 * p[P_WPA] / GRAVITY - 2.0 * mw - p[P_MB]
+    if carried < 0.0:
+        carried = 0.0
     out[16] = dyb
-    out[17] = (frame_force - 2.0 * p[P_KSY] * yb - 2.0 * p[P_CSY] * dyb + Q[0]) / p[P_MB]
+    out[17] = (frame_force - 2.0 * p[P_KSY] * yb - 2.0 * p[P_CSY] * dyb + Q[0] - (p[P_MB] + carried) * accel_b) / p[P_MB]
     out[18] = dpsib
     out[19] = (
         frame_moment
@@ -256,7 +325,8 @@ def _guiding_forces_row(x, V, yt, p, out):
     inv_v = 1.0 / V
     for i in range(2):
         o = 8 * i
-        out[i] = _wheel_rail_forces(x[o] - yt[i], x[o + 1], x[o + 4], x[o + 5], x[o + 6], x[o + 7], inv_v, p)[0]
+        out[i] = _wheel_rail_forces(x[o] - yt[ALIGNMENT_WHEELSET1 + i], x[o + 1], x[o + 4], x[o + 5], x[o + 6], x[o + 7],
+                                    inv_v, yt[CURVATURE_WHEELSET1 + i], p)[0]  # fmt: skip
 
 
 @njit(cache=True)
@@ -326,6 +396,19 @@ def _as_rows(array, width: int, n_rows: int | None, name: str) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
+def _track_rows(track, n_rows: int) -> np.ndarray:
+    """Track samples (N_TRACK,) or (N, N_TRACK) as rows; the two alignment samples alone (width 2)
+    mean straight track without cant."""
+    if track is None:
+        return np.zeros((n_rows, N_TRACK))
+    a = np.asarray(track, dtype=np.float64)
+    if a.shape[-1:] == (2,) and N_TRACK != 2:
+        full = np.zeros(a.shape[:-1] + (N_TRACK,))
+        full[..., ALIGNMENT_WHEELSET1 : ALIGNMENT_WHEELSET1 + 2] = a
+        a = full
+    return _as_rows(a, N_TRACK, n_rows, "track")
+
+
 class BogieModel:
     """The physics of one bogie design: parameters, contact coefficients and the equations.
 
@@ -362,7 +445,7 @@ class BogieModel:
         if v.shape != (n,):
             raise ValueError(f"speed has shape {np.shape(speed)}; expected a scalar or ({n},)")
         q = _as_rows(np.zeros(N_INPUTS) if inputs is None else inputs, N_INPUTS, n, "inputs")
-        yt = _as_rows(np.zeros(N_TRACK) if track is None else track, N_TRACK, n, "track")
+        yt = _track_rows(track, n)
         out = np.empty((n, N_STATES))
         rhs_batch_kernel(x, np.ascontiguousarray(v), q, yt, self.coefficients, out)
         return out[0] if single else out
@@ -378,7 +461,7 @@ class BogieModel:
         x = _as_rows(state, N_STATES, 1, "state")[0]
         v = float(check_speed(speed))
         q = _as_rows(np.zeros(N_INPUTS) if inputs is None else inputs, N_INPUTS, 1, "inputs")[0]
-        yt = _as_rows(np.zeros(N_TRACK) if track is None else track, N_TRACK, 1, "track")[0]
+        yt = _track_rows(track, 1)[0]
         jac = np.empty((N_STATES, N_STATES))
         jacobian_kernel(np.ascontiguousarray(x), v, q, yt, self.coefficients, jac)
         return jac

@@ -213,7 +213,7 @@ def reference_solution(
     check_speed(speed + accel * (t_span[1] - t_span[0]), "final speed")
     p = model.coefficients
     zeros_q = np.zeros(N_INPUTS)
-    zeros_t = np.zeros(2)
+    zeros_t = np.zeros(N_TRACK_SAMPLES)
     out = np.empty(N_STATES)
 
     def f(t, x):

@@ -34,7 +34,7 @@ from numba import njit, prange
 from .actuators import CH_DECAY_RATE, DAMPING, DELAY_SLOTS, FORCE, N_CHANNELS, advance_lag, channel_table, delayed_targets, lag_weights
 from .dynamics import N_STATES, P_L1, BogieModel, check_speed
 from .integrate import FASTMATH, N_SCRATCH, STATUS_OK, _advance_row, stable_substep
-from .track import N_TRACK_SAMPLES, TrackInput, TrackProfile, sample_track
+from .track import ALIGNMENT_SAMPLES, N_TRACK_SAMPLES, TrackInput, TrackProfile, sample_track
 
 # ---- columns of a row's motion -----------------------------------------------------------------
 MOTION_FIELDS = ("speed", "accel", "end_speed", "distance", "steps", "start_speed")
@@ -330,7 +330,7 @@ class BatchSimulator:
 
     def track_displacement(self) -> np.ndarray:
         """Track alignment under each wheelset now, (N, 2) m."""
-        return self.track.under_wheelsets(self.distance, self.model.params.L1)
+        return self.track.under_wheelsets(self.distance, self.model.params.L1)[:, list(ALIGNMENT_SAMPLES)]
 
     # ---- stepping ----------------------------------------------------------------------------
     def advance(self) -> np.ndarray:

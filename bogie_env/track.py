@@ -1,4 +1,7 @@
-"""Lateral track (alignment) irregularity: a stationary random profile with a documented PSD.
+"""The track input: lateral alignment irregularity and the route geometry (curvature, cant).
+
+The alignment irregularity is a stationary random profile with a documented PSD; the route
+geometry (tangents, clothoid transitions, circular curves, cant) is :mod:`bogie_env.route`.
 
 Shape: the German high-speed alignment spectrum (low-disturbance class), widely used for
 high-speed vehicle simulation (see e.g. X. Lei, *High Speed Railway Track Dynamics*,
@@ -25,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from .dynamics import N_TRACK
+from .route import CANT_BASE_M, Route
 
 GERMAN_LOW = {"A_a": 2.119e-7, "Omega_c": 0.8246, "Omega_r": 0.0206}
 
@@ -69,31 +72,55 @@ def perfect_track() -> TrackProfile:
 
 # ---- the track input of the dynamics ------------------------------------------------------
 #: What the dynamics reads from the track, per bogie (its ``yt`` argument): the lateral
-#: alignment under the front and the rear wheelset. Curvature and cant will join here.
-TRACK_SAMPLES: tuple[str, ...] = ("alignment_wheelset1", "alignment_wheelset2")
-ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2 = range(2)
+#: alignment under the front and the rear wheelset (m), the route's curvature (1/m, + left)
+#: and cant angle (rad, + banked towards +y) under each wheelset and the frame centre.
+TRACK_SAMPLES: tuple[str, ...] = (
+    "alignment_wheelset1", "alignment_wheelset2",
+    "curvature_wheelset1", "curvature_wheelset2", "curvature_frame",
+    "cant_angle_wheelset1", "cant_angle_wheelset2", "cant_angle_frame",
+)  # fmt: skip
+(
+    ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2,
+    CURVATURE_WHEELSET1, CURVATURE_WHEELSET2, CURVATURE_FRAME,
+    CANT_WHEELSET1, CANT_WHEELSET2, CANT_FRAME,
+) = range(len(TRACK_SAMPLES))  # fmt: skip
 N_TRACK_SAMPLES = len(TRACK_SAMPLES)
-assert N_TRACK_SAMPLES == N_TRACK
+ALIGNMENT_SAMPLES = (ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2)
 # Fields of the compiled track tuple (TrackInput.compiled()).
 TRACK_ALIGNMENT, TRACK_ALIGNMENT_INV_DX = range(2)
+ROUTE_START, ROUTE_LENGTH, ROUTE_CURVATURE0, ROUTE_CURVATURE1, ROUTE_CANT0, ROUTE_CANT1 = range(2, 8)
+_NO_ROUTE = tuple(np.zeros(0) for _ in range(6))
 
 
 @dataclass(frozen=True)
 class TrackInput:
-    """The track a bogie runs on, by named field: lateral alignment (curvature and cant to come).
+    """The track a bogie runs on, by named field: lateral alignment and the route geometry.
 
-    The compiled code reads it as the tuple :meth:`compiled` through :func:`sample_track`.
+    ``route`` None is straight track without cant (the samples of curvature and cant are
+    exact zeros). The compiled code reads the track as the tuple :meth:`compiled` through
+    :func:`sample_track`.
     """
 
     alignment: TrackProfile = field(default_factory=perfect_track)
+    route: Route | None = None
 
-    def compiled(self) -> tuple[np.ndarray, float]:
-        return (self.alignment.values, 1.0 / self.alignment.dx)
+    def compiled(self) -> tuple:
+        route = _NO_ROUTE if self.route is None else self.route.compiled()
+        return (self.alignment.values, 1.0 / self.alignment.dx) + route
 
     def under_wheelsets(self, distance: np.ndarray | float, L1: float) -> np.ndarray:
-        """Samples (..., N_TRACK_SAMPLES) at the wheelsets of bogies whose centre is at ``distance``."""
+        """The samples (..., N_TRACK_SAMPLES) of bogies whose centre is at ``distance``: alignment,
+        curvature and cant angle under each wheelset (and the frame), computed in numpy."""
         distance = np.asarray(distance, dtype=float)
-        return np.stack([self.alignment.at(distance + L1), self.alignment.at(distance - L1)], axis=-1)
+        out = np.zeros(distance.shape + (N_TRACK_SAMPLES,))
+        out[..., ALIGNMENT_WHEELSET1] = self.alignment.at(distance + L1)
+        out[..., ALIGNMENT_WHEELSET2] = self.alignment.at(distance - L1)
+        if self.route is not None:
+            for column, offset in ((CURVATURE_WHEELSET1, L1), (CURVATURE_WHEELSET2, -L1), (CURVATURE_FRAME, 0.0)):
+                out[..., column] = self.route.curvature(distance + offset)
+            for column, offset in ((CANT_WHEELSET1, L1), (CANT_WHEELSET2, -L1), (CANT_FRAME, 0.0)):
+                out[..., column] = np.arcsin(self.route.cant(distance + offset) / CANT_BASE_M)
+        return out
 
 
 @njit(cache=True, inline="always")
@@ -111,10 +138,44 @@ def _interpolate(profile, inv_dx, s):
 
 
 @njit(cache=True, inline="always")
+def _route_at(start, length, v0, v1, s):
+    """A route quantity that varies linearly along each segment (empty route: 0); held beyond the ends."""
+    n = start.shape[0]
+    if n == 0:
+        return 0.0
+    lo = 0
+    hi = n - 1
+    while lo < hi:  # the last segment starting at or before s
+        mid = (lo + hi + 1) // 2
+        if start[mid] <= s:
+            lo = mid
+        else:
+            hi = mid - 1
+    w = (s - start[lo]) / length[lo]
+    if w < 0.0:
+        w = 0.0
+    elif w > 1.0:
+        w = 1.0
+    return v0[lo] + (v1[lo] - v0[lo]) * w
+
+
+@njit(cache=True, inline="always")
 def sample_track(track, s, L1, out):
-    """The track samples under the wheelsets of a bogie whose centre is at distance s, into out."""
+    """The track samples (TRACK_SAMPLES) of a bogie whose centre is at distance s, into out."""
     out[ALIGNMENT_WHEELSET1] = _interpolate(track[TRACK_ALIGNMENT], track[TRACK_ALIGNMENT_INV_DX], s + L1)
     out[ALIGNMENT_WHEELSET2] = _interpolate(track[TRACK_ALIGNMENT], track[TRACK_ALIGNMENT_INV_DX], s - L1)
+    start = track[ROUTE_START]
+    length = track[ROUTE_LENGTH]
+    k0 = track[ROUTE_CURVATURE0]
+    k1 = track[ROUTE_CURVATURE1]
+    c0 = track[ROUTE_CANT0]
+    c1 = track[ROUTE_CANT1]
+    out[CURVATURE_WHEELSET1] = _route_at(start, length, k0, k1, s + L1)
+    out[CURVATURE_WHEELSET2] = _route_at(start, length, k0, k1, s - L1)
+    out[CURVATURE_FRAME] = _route_at(start, length, k0, k1, s)
+    out[CANT_WHEELSET1] = math.asin(_route_at(start, length, c0, c1, s + L1) / CANT_BASE_M)
+    out[CANT_WHEELSET2] = math.asin(_route_at(start, length, c0, c1, s - L1) / CANT_BASE_M)
+    out[CANT_FRAME] = math.asin(_route_at(start, length, c0, c1, s) / CANT_BASE_M)
 
 
 def alignment_profile(

@@ -634,7 +634,7 @@ class HuntingTask:
     @property
     def relative_lateral_m(self) -> np.ndarray:
         """(N, 2) each wheelset's lateral displacement relative to the rail now."""
-        return self.sim.x[:, [Y1, Y2]] - self.sim.track_sample
+        return self.sim.x[:, [Y1, Y2]] - self.sim.track_sample[:, [ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2]]
 
     @property
     def actuator_force(self) -> np.ndarray:
