@@ -3,6 +3,8 @@
 Each subcommand is a thin client of the library.
 
     bogie critical-speed [--config FILE] [--set NAME=VALUE ...] [--json]
+    bogie curving --radius M --cant M --speed-kmh KMH [--direction left|right] [--out DIR] [--json]
+    bogie curving --route NAME [--speed-kmh KMH] [--out DIR] [--json]
 
 The ``bogie`` console script is :mod:`bogie_agents.cli`, which adds the agents' commands
 (train, tune, evaluate, results) to this parser; ``python -m bogie_env.cli`` has the library's alone.
@@ -393,6 +395,70 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     results = reproduce(args.out, load_params(args.config, args.overrides), workers=args.workers)
     print(f"wrote {args.out}/report.md and figures; timings (s): {results['timings_s']}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------
+@command("curving", "steady-state curving at a radius, cant and speed; or dynamic curve negotiation on a route")
+@json_option
+@argument("--out", default=None, help="folder for the figures: against radius and cant deficiency (steady), "
+                                      "or time histories (--route)")
+@argument("--route", default=None, help="a shipped route name (configs/routes) or a route YAML file: run along it")
+@argument("--direction", choices=("left", "right"), default="left", help="curve direction (steady state)")
+@argument("--speed-kmh", "--speed", dest="speed_kmh", type=float, default=None,
+          help="speed (km/h); with --route the route's design speed by default")
+@argument("--cant", type=float, default=0.0, help="cant (m): height of the outer rail above the inner one")
+@argument("--radius", type=float, default=None, help="curve radius (m)")
+@bogie_options
+def cmd_curving(args: argparse.Namespace) -> int:
+    from .analysis import curving
+
+    model = _model(args)
+    if args.route is not None:
+        return _curving_route(args, model)
+    if args.radius is None or args.speed_kmh is None:
+        raise ConfigError("curving: give --radius (m) and --speed-kmh (km/h) for a steady state, or --route NAME")
+    result = curving.steady_curving(model, args.radius, args.cant, args.speed_kmh, args.direction)
+    payload = result.to_dict()
+    payload["config"] = model.params.source
+    payload["overrides"] = args.overrides
+    if args.out:
+        payload["figures"] = curving.write_sweep_figures(model, args.radius, args.cant, args.speed_kmh, args.direction, args.out)
+    if args.json:
+        print_json(payload)
+        return 0
+    print(f"R {args.radius:g} m {args.direction}, cant {1e3 * args.cant:g} mm, {args.speed_kmh:g} km/h: cant deficiency "
+          f"{1e3 * payload['cant_deficiency_m']:.1f} mm ({payload['unbalanced_acceleration_m_per_s2']:.3f} m/s^2), "
+          f"steady state by {payload['method']}, {'stable' if payload['stable'] else 'UNSTABLE'}")
+    for i, name in enumerate(("front", "rear")):
+        print(f"  {name:5s} y {1e3 * payload['lateral_displacement_m'][i]:+7.2f} mm  "
+              f"AoA {1e3 * payload['angle_of_attack_rad'][i]:+7.3f} mrad  "
+              f"SumY {1e-3 * payload['guiding_force_n'][i]:+7.2f} kN  "
+              f"Y/Q {payload['y_over_q'][i][0]:+.3f} / {payload['y_over_q'][i][1]:+.3f}  "
+              f"Tgamma {payload['wear_number_n'][i]:7.1f} N  flange {'yes' if payload['flange_contact'][i] else 'no'}")
+    return 0
+
+
+def _curving_route(args: argparse.Namespace, model) -> int:
+    from pathlib import Path
+
+    from .analysis import curving
+    from .route import load_route
+
+    route = load_route(args.route)
+    speed = args.speed_kmh if args.speed_kmh is not None else route.design_speed_kmh
+    if speed is None:
+        raise ConfigError(f"curving: route {route.name!r} has no design_speed_kmh; give --speed-kmh")
+    run = curving.route_run(model, route, speed)
+    payload = run.summary(flange_time_dt=0.01)
+    if args.out:
+        figure = curving.route_figure(run, Path(args.out) / f"route_{route.name}.png")
+        payload["figures"] = {"time_histories": str(figure)}
+    if args.json:
+        print_json(payload)
+    else:
+        for key, value in payload.items():
+            print(f"{key:30s} {value}")
     return 0
 
 

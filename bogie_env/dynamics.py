@@ -233,6 +233,14 @@ def _wheel_rail_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p):
 
 
 @njit(cache=True, inline="always")
+def _sample(yt, k):
+    """Track sample k; 0 when the caller passed fewer samples (the alignment alone: straight track)."""
+    if k < yt.shape[0]:
+        return yt[k]
+    return 0.0
+
+
+@njit(cache=True, inline="always")
 def _rhs_row(x, V, Q, yt, p, out):
     mw = p[P_MW]
     L1 = p[P_L1]
@@ -252,8 +260,9 @@ def _rhs_row(x, V, Q, yt, p, out):
     dpsib = x[19]
     # Curving (docs/model.md Section 11): the frame's track curvature and unbalanced
     # acceleration (Eq. C1); exact zeros on straight track without cant.
-    kappa_b = yt[CURVATURE_FRAME]
-    accel_b = V * V * kappa_b * np.cos(yt[CANT_FRAME]) - GRAVITY * np.sin(yt[CANT_FRAME])
+    kappa_b = _sample(yt, CURVATURE_FRAME)
+    cant_b = _sample(yt, CANT_FRAME)
+    accel_b = V * V * kappa_b * np.cos(cant_b) - GRAVITY * np.sin(cant_b)
     frame_force = 0.0 * yb
     frame_moment = 0.0 * yb
     for i in range(2):
@@ -262,8 +271,9 @@ def _rhs_row(x, V, Q, yt, p, out):
         dpsi = x[o + 5]
         dphi = x[o + 7]
         side = 1.0 - 2.0 * i  # +1 front (x = +L1), -1 rear
-        kappa = yt[CURVATURE_WHEELSET1 + i]
-        accel = V * V * kappa * np.cos(yt[CANT_WHEELSET1 + i]) - GRAVITY * np.sin(yt[CANT_WHEELSET1 + i])  # Eq. (C1)
+        kappa = _sample(yt, CURVATURE_WHEELSET1 + i)
+        cant = _sample(yt, CANT_WHEELSET1 + i)
+        accel = V * V * kappa * np.cos(cant) - GRAVITY * np.sin(cant)  # Eq. (C1)
         # The wheelset's track axes seen from the frame's (Eqs. C6-C7, trapezoidal in curvature):
         # heading, lateral offset of the centreline, and their rates.
         d = side * L1
@@ -326,7 +336,7 @@ def _guiding_forces_row(x, V, yt, p, out):
     for i in range(2):
         o = 8 * i
         out[i] = _wheel_rail_forces(x[o] - yt[ALIGNMENT_WHEELSET1 + i], x[o + 1], x[o + 4], x[o + 5], x[o + 6], x[o + 7],
-                                    inv_v, yt[CURVATURE_WHEELSET1 + i], p)[0]  # fmt: skip
+                                    inv_v, _sample(yt, CURVATURE_WHEELSET1 + i), p)[0]  # fmt: skip
 
 
 @njit(cache=True)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
-from .dynamics import LATERAL_STATES, MAX_SPEED, MIN_SPEED, N_INPUTS, N_STATES, BogieModel, check_speed, jacobian_kernel
+from .dynamics import LATERAL_STATES, MAX_SPEED, MIN_SPEED, N_INPUTS, N_STATES, N_TRACK, BogieModel, check_speed, jacobian_kernel
 from .params import BogieParams
 
 KMH = 3.6  # (km/h) per (m/s)
@@ -80,7 +80,7 @@ def linearize(model: BogieModel, speeds: tuple[float, float, float] = (40.0, 80.
     """Extract J0, J1, J2 from exact Jacobians at three speeds (m/s)."""
     v = np.asarray(speeds, dtype=float)
     x_eq = model.equilibrium(v[0])
-    q, yt = np.zeros(N_INPUTS), np.zeros(2)
+    q, yt = np.zeros(N_INPUTS), np.zeros(N_TRACK)
     jacobians = np.empty((3, N_STATES, N_STATES))
     for k, s in enumerate(v):
         jacobian_kernel(x_eq, float(s), q, yt, model.coefficients, jacobians[k])

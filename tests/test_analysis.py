@@ -184,7 +184,7 @@ def test_en14363_quantities_limits_and_mirror_symmetry(paper_model):
     mirror[list(ANTISYMMETRIC_STATES)] = -1.0
     direct, mirrored = np.empty((1, 2)), np.empty((1, 2))
     v = np.array([400.0 / 3.6])
-    guiding_forces_kernel(x, v, np.zeros((1, 2)), paper_model.coefficients, direct)
-    guiding_forces_kernel(x * mirror, v, np.zeros((1, 2)), paper_model.coefficients, mirrored)
+    guiding_forces_kernel(x, v, np.zeros((1, N_TRACK)), paper_model.coefficients, direct)
+    guiding_forces_kernel(x * mirror, v, np.zeros((1, N_TRACK)), paper_model.coefficients, mirrored)
     assert np.abs(direct).max() > 1e3
     np.testing.assert_allclose(mirrored, -direct, rtol=1e-12, atol=1e-9)

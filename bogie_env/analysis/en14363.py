@@ -20,7 +20,7 @@ import json
 
 import numpy as np
 
-from ..dynamics import BogieModel, guiding_forces_kernel, state_index
+from ..dynamics import N_TRACK, BogieModel, guiding_forces_kernel, state_index
 from ..stability import KMH
 from ..simulator import BatchSimulator
 from .bifurcation import limit_cycle_state
@@ -41,7 +41,7 @@ def limit_cycle_quantities(model: BogieModel, speeds_kmh: np.ndarray, duration: 
         guiding = np.empty((1, 2))
         for _ in range(int(round(duration / dt))):
             sim.step()
-            guiding_forces_kernel(sim.x, np.array([v]), np.zeros((1, 2)), model.coefficients, guiding)
+            guiding_forces_kernel(sim.x, np.array([v]), np.zeros((1, N_TRACK)), model.coefficients, guiding)
             forces.append(guiding[0].copy())
             accels.append(model.rhs(sim.x[0], v)[yb_dot])
         forces, accels = np.array(forces), np.array(accels)

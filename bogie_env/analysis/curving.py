@@ -1,0 +1,422 @@
+"""Curving: the steady state in a circular curve, sweeps over radius and cant deficiency, and
+dynamic curve negotiation on a route (docs/model.md Section 11).
+
+- :func:`steady_curving`: the steady state at a radius, cant and speed. The root of the
+  right-hand side with all rates zero (scipy ``root``, exact complex-step Jacobian), started
+  from the linear guess (one Newton step from the straight-track equilibrium); if the root
+  finder fails, a long time simulation on the curve (the simulator's one driver) and the root
+  finder again from its end state.
+- :func:`wheel_rail_quantities`: what a curving assessment reads at any state: lateral
+  displacement, angle of attack, creep forces, Y/Q per wheel, the sum of guiding forces ΣY and
+  the wear number Tγ per wheelset, flange contact.
+- :func:`route_run`: a bogie at constant speed along a route (:mod:`bogie_env.route`), with the
+  same quantities as time histories.
+
+Sign conventions (model axes: x forward, y left): lateral displacement from the local track
+centreline, + left; angle of attack = the wheelset's yaw from the local track tangent, + nose
+left (in a left curve a wheelset pointing to the outer rail has a negative angle); creep
+forces of the rail on the wheel in contact axes, longitudinal + forward, lateral + left;
+Y of each wheel = the lateral force the wheel puts on its rail, + towards the outside of the
+track for that rail (the derailment sign), Q = the model's wheel load Wpa/2; ΣY = the lateral
+force of the wheelset on the track, + left; Tγ = -(Fx ξx + Fy ξy) per wheel, the creep work per
+metre rolled (N), summed per wheelset.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+from scipy.optimize import root
+
+from ..dynamics import (
+    N_INPUTS, N_STATES, N_TRACK, P_DELTA, P_WPA, BogieModel, _creep, _wheel_forces, check_speed, jacobian_kernel,
+    rhs_single_kernel,
+)  # fmt: skip
+from ..route import GRAVITY, Route, cant_angle, constant_curve, equilibrium_cant_m, unbalanced_acceleration
+from ..track import (
+    ALIGNMENT_WHEELSET1, CANT_FRAME, CANT_WHEELSET1, CANT_WHEELSET2, CURVATURE_FRAME, CURVATURE_WHEELSET1,
+    CURVATURE_WHEELSET2, TrackInput, TrackProfile,
+)  # fmt: skip
+
+KMH = 3.6
+#: EN 14363: Y/Q limit in curves of radius >= 250 m; ΣY limit 10 kN + 2 Q0 / 3 (Prud'homme,
+#: alpha = 1), Q0 the static wheel force. Quoted as commonly cited; check against the standard.
+Y_OVER_Q_LIMIT = 0.8
+POSITIONS = tuple(range(0, N_STATES, 2))  # y1, z1, psi1, phi1, y2, z2, psi2, phi2, yb, psib
+ACCELERATIONS = tuple(range(1, N_STATES, 2))
+
+# Columns of the per-wheelset details (wheel_rail_details_kernel).
+DETAIL_NAMES = (
+    "xi_x_left", "xi_y_left", "xi_sp_left", "xi_x_right", "xi_y_right", "xi_sp_right",
+    "fx_left", "fy_left", "fx_right", "fy_right", "y_left", "y_right", "flange", "guiding",
+)  # fmt: skip
+(XI_X_L, XI_Y_L, XI_SP_L, XI_X_R, XI_Y_R, XI_SP_R, FX_L, FY_L, FX_R, FY_R, Y_L, Y_R, FLANGE, GUIDING) = range(
+    len(DETAIL_NAMES)
+)
+
+
+@njit(cache=True)
+def wheel_rail_details_kernel(x, V, yt, p, out):
+    """Per record n and wheelset i, the DETAIL_NAMES columns into out (N, 2, len(DETAIL_NAMES)).
+
+    The same compiled contact functions as the right-hand side (``dynamics._creep``,
+    ``dynamics._wheel_forces``); Y per wheel is the force on its rail, + outwards.
+    """
+    for n in range(x.shape[0]):
+        inv_v = 1.0 / V[n]
+        for i in range(2):
+            o = 8 * i
+            y_rel = x[n, o] - yt[n, ALIGNMENT_WHEELSET1 + i]
+            kappa = yt[n, CURVATURE_WHEELSET1 + i]
+            dy, psi, dpsi, phi, dphi = x[n, o + 1], x[n, o + 4], x[n, o + 5], x[n, o + 6], x[n, o + 7]
+            (xxl, xyl, xsl, xxr, xyr, xsr, fxl, fyl, _, fxr, fyr, _) = _creep(y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p)
+            (_, Fy_l, _, _, _, _, Fy_r, _, _, _, Ny_l, Ny_r, flange) = _wheel_forces(
+                y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p
+            )
+            row = out[n, i]
+            row[XI_X_L] = xxl
+            row[XI_Y_L] = xyl
+            row[XI_SP_L] = xsl
+            row[XI_X_R] = xxr
+            row[XI_Y_R] = xyr
+            row[XI_SP_R] = xsr
+            row[FX_L] = fxl
+            row[FY_L] = fyl
+            row[FX_R] = fxr
+            row[FY_R] = fyr
+            # The flange force acts on the left wheel when positive (y_rel >= delta), else on the right.
+            row[Y_L] = -(Fy_l + Ny_l - max(flange, 0.0))
+            row[Y_R] = Fy_r + Ny_r - min(flange, 0.0)
+            row[FLANGE] = flange
+            row[GUIDING] = -(Fy_l + Fy_r + Ny_l + Ny_r - flange)
+
+
+def curve_samples(curvature: float, cant_m: float) -> np.ndarray:
+    """Track samples of a circular curve: the same curvature (1/m, + left) and cant (m, signed
+    like the curvature) under both wheelsets and the frame, no alignment irregularity."""
+    yt = np.zeros(N_TRACK)
+    theta = cant_angle(cant_m)
+    yt[[CURVATURE_WHEELSET1, CURVATURE_WHEELSET2, CURVATURE_FRAME]] = curvature
+    yt[[CANT_WHEELSET1, CANT_WHEELSET2, CANT_FRAME]] = theta
+    return yt
+
+
+def signed_curve(radius_m: float, cant_m: float, direction: str) -> tuple[float, float]:
+    """(curvature, signed cant) of a curve of radius (m) and cant (m, >= 0) towards direction."""
+    if direction not in ("left", "right"):
+        raise ValueError(f"direction = {direction!r} is not allowed; allowed: left, right")
+    if not (math.isfinite(radius_m) and radius_m > 0):
+        raise ValueError(f"radius = {radius_m!r} m is not allowed; allowed: finite, > 0 (m)")
+    if not (math.isfinite(cant_m) and abs(cant_m) < 1.5):
+        raise ValueError(f"cant = {cant_m!r} m is not allowed; allowed: finite, |cant| < 1.5 m (the cant base)")
+    sign = 1.0 if direction == "left" else -1.0
+    return sign / radius_m, sign * cant_m
+
+
+def wheel_rail_quantities(model: BogieModel, states: np.ndarray, speeds: np.ndarray, samples: np.ndarray) -> dict:
+    """The curving quantities at states (N, 20), speeds (N,) m/s and track samples (N, N_TRACK)."""
+    x = np.ascontiguousarray(np.atleast_2d(states), dtype=np.float64)
+    n = x.shape[0]
+    v = np.ascontiguousarray(np.broadcast_to(np.asarray(speeds, dtype=np.float64), (n,)))
+    yt = np.ascontiguousarray(np.broadcast_to(samples, (n, N_TRACK)), dtype=np.float64)
+    out = np.empty((n, 2, len(DETAIL_NAMES)))
+    wheel_rail_details_kernel(x, v, yt, model.coefficients, out)
+    q = 0.5 * model.coefficients[P_WPA]
+    wheel = lambda left, right: np.stack([out[..., left], out[..., right]], axis=-1)  # noqa: E731  (N, 2, 2)
+    fx, fy = wheel(FX_L, FX_R), wheel(FY_L, FY_R)
+    wear = -(fx * wheel(XI_X_L, XI_X_R) + fy * wheel(XI_Y_L, XI_Y_R))
+    return {
+        "lateral_displacement_m": x[:, [0, 8]] - yt[:, [ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET1 + 1]],
+        "angle_of_attack_rad": x[:, [4, 12]],
+        "creep_force_longitudinal_n": fx,
+        "creep_force_lateral_n": fy,
+        "wheel_lateral_force_n": wheel(Y_L, Y_R),
+        "y_over_q": wheel(Y_L, Y_R) / q,
+        "guiding_force_n": out[..., GUIDING],
+        "wear_number_wheel_n": wear,
+        "wear_number_n": wear.sum(axis=-1),
+        "flange_force_n": out[..., FLANGE],
+        "flange_contact": np.abs(x[:, [0, 8]] - yt[:, [ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET1 + 1]])
+        >= model.coefficients[P_DELTA],
+    }
+
+
+# ---- steady state -------------------------------------------------------------------------------
+def _residual_and_jacobian(model: BogieModel, speed: float, samples: np.ndarray):
+    p = model.coefficients
+    q = np.zeros(N_INPUTS)
+    x = np.zeros(N_STATES)
+    f = np.empty(N_STATES)
+    jac = np.empty((N_STATES, N_STATES))
+    acc = np.array(ACCELERATIONS)
+    pos = np.array(POSITIONS)
+
+    def residual(positions):
+        x[pos] = positions
+        rhs_single_kernel(x, speed, q, samples, p, f)
+        jacobian_kernel(x, speed, q, samples, p, jac)
+        return f[acc].copy(), jac[np.ix_(acc, pos)].copy()
+
+    return residual
+
+
+def solve_steady_state(model: BogieModel, speed: float, samples: np.ndarray, tol: float = 1e-9) -> tuple[np.ndarray, str, float]:
+    """The steady state (20,) at speed (m/s) on constant track samples, rates zero.
+
+    Returns (state, method, residual). Method "root" (scipy hybr from the linear guess) or
+    "time-simulation" (a 60 s run on the curve, then the root finder from its end state).
+    Raises RuntimeError if neither converges to ``tol`` (m/s^2 and rad/s^2).
+    """
+    speed = float(check_speed(speed))
+    samples = np.ascontiguousarray(samples, dtype=np.float64)
+    residual = _residual_and_jacobian(model, speed, samples)
+    start = model.equilibrium(speed)[list(POSITIONS)]
+    f0, j0 = residual(start)
+    guess = start - np.linalg.solve(j0, f0)  # the linear guess
+    solution = root(residual, guess, jac=True, method="hybr", options={"xtol": 1e-13})
+    best = float(np.max(np.abs(residual(solution.x)[0])))
+    method = "root"
+    if not (np.all(np.isfinite(solution.x)) and best < tol):
+        end = _simulated_end_state(model, speed, samples)
+        solution = root(residual, end[list(POSITIONS)], jac=True, method="hybr", options={"xtol": 1e-13})
+        best = float(np.max(np.abs(residual(solution.x)[0])))
+        method = "time-simulation"
+        if not (np.all(np.isfinite(solution.x)) and best < tol):
+            raise RuntimeError(f"steady curving: no steady state found at {speed * KMH:.1f} km/h (residual {best:.3g})")
+    state = np.zeros(N_STATES)
+    state[list(POSITIONS)] = solution.x
+    return state, method, best
+
+
+def _simulated_end_state(model: BogieModel, speed: float, samples: np.ndarray, duration: float = 60.0) -> np.ndarray:
+    """The state after ``duration`` seconds on a constant curve with these samples (passive)."""
+    from ..simulator import BatchSimulator
+
+    curvature = float(samples[CURVATURE_FRAME])
+    cant = 1.5 * math.sin(float(samples[CANT_FRAME]))
+    route = _curve_route(curvature, cant)
+    sim = BatchSimulator(model, 1, 0.01, (speed, speed), track=TrackInput(route=route))
+    sim.set_rows(slice(None), model.equilibrium(speed)[None], speed)
+    sim.run(int(round(duration / 0.01)), record_every=10**9)
+    return sim.x[0].copy()
+
+
+def _curve_route(curvature: float, cant_m: float, length_m: float = 1.0e6) -> Route:
+    if curvature == 0.0:
+        from ..route import route_from_dict
+
+        return route_from_dict({"name": "tangent", "segments": [{"type": "tangent", "length": length_m}]})
+    direction = "left" if curvature > 0 else "right"
+    return constant_curve(1.0 / abs(curvature), abs(cant_m), direction, length_m)
+
+
+@dataclass
+class CurvingResult:
+    """Steady curving at one radius, cant and speed; arrays per wheelset (and per wheel: [left, right])."""
+
+    radius_m: float
+    cant_m: float
+    direction: str
+    speed_kmh: float
+    cant_deficiency_m: float
+    unbalanced_acceleration_m_per_s2: float
+    equilibrium_speed_kmh: float
+    method: str
+    residual: float
+    max_real_eigenvalue: float
+    state: np.ndarray
+    quantities: dict = field(default_factory=dict)
+    guiding_force_limit_n: float = 0.0
+
+    def to_dict(self) -> dict:
+        out = {k: v for k, v in asdict(self).items() if k not in ("state", "quantities")}
+        out["stable"] = bool(self.max_real_eigenvalue < 0.0)
+        for name, value in self.quantities.items():
+            out[name] = np.asarray(value)[0].tolist()
+        out["flange_contact_any"] = bool(np.any(self.quantities["flange_contact"]))
+        out["guiding_force_sum_n"] = float(np.sum(self.quantities["guiding_force_n"][0]))
+        out["y_over_q_max"] = float(np.max(self.quantities["y_over_q"][0]))
+        out["y_over_q_limit"] = Y_OVER_Q_LIMIT
+        out["state"] = {name: float(v) for name, v in zip(BogieModel.state_names, self.state)}
+        return out
+
+
+def steady_curving(model: BogieModel, radius_m: float, cant_m: float, speed_kmh: float, direction: str = "left") -> CurvingResult:
+    """Steady-state curving at radius (m), cant (m, >= 0 raises the outer rail) and speed (km/h)."""
+    curvature, cant = signed_curve(radius_m, cant_m, direction)
+    v = float(check_speed(speed_kmh / KMH, "speed"))
+    samples = curve_samples(curvature, cant)
+    state, method, res = solve_steady_state(model, v, samples)
+    jac = model.jacobian(state, v, track=samples)
+    accel = unbalanced_acceleration(speed_kmh, curvature, cant)
+    q0_kn = 0.5 * model.params.Wpa / 1e3
+    return CurvingResult(
+        radius_m=float(radius_m),
+        cant_m=float(cant_m),
+        direction=direction,
+        speed_kmh=float(speed_kmh),
+        cant_deficiency_m=equilibrium_cant_m(speed_kmh, radius_m) - float(cant_m),
+        unbalanced_acceleration_m_per_s2=abs(accel),
+        equilibrium_speed_kmh=math.sqrt(GRAVITY * math.tan(cant_angle(cant_m)) * radius_m) * KMH,
+        method=method,
+        residual=res,
+        max_real_eigenvalue=float(np.max(np.linalg.eigvals(jac).real)),
+        state=state,
+        quantities=wheel_rail_quantities(model, state[None], np.array([v]), samples[None]),
+        guiding_force_limit_n=1e3 * (10.0 + 2.0 * q0_kn / 3.0),
+    )
+
+
+# ---- sweeps and figures ---------------------------------------------------------------------------
+def radius_sweep(model: BogieModel, radii_m: np.ndarray, cant_m: float, speed_kmh: float, direction: str = "left") -> list[CurvingResult]:
+    return [steady_curving(model, float(r), cant_m, speed_kmh, direction) for r in radii_m]
+
+
+def cant_deficiency_sweep(
+    model: BogieModel, radius_m: float, deficiencies_m: np.ndarray, speed_kmh: float, direction: str = "left"
+) -> list[CurvingResult]:
+    """Steady curving at one radius and speed, the cant set to give each cant deficiency (m)."""
+    d_eq = equilibrium_cant_m(speed_kmh, radius_m)
+    return [steady_curving(model, radius_m, d_eq - float(d), speed_kmh, direction) for d in deficiencies_m]
+
+
+def _panel_series(results: list[CurvingResult]) -> dict[str, np.ndarray]:
+    q = [r.quantities for r in results]
+    return {
+        "lateral displacement (mm)": np.array([1e3 * x["lateral_displacement_m"][0] for x in q]),
+        "angle of attack (mrad)": np.array([1e3 * x["angle_of_attack_rad"][0] for x in q]),
+        "guiding force ΣY (kN)": np.array([1e-3 * x["guiding_force_n"][0] for x in q]),
+        "max Y/Q per wheelset (-)": np.array([x["y_over_q"][0].max(axis=-1) for x in q]),
+        "wear number Tγ (N)": np.array([x["wear_number_n"][0] for x in q]),
+        "flange force (kN)": np.array([1e-3 * np.abs(x["flange_force_n"][0]) for x in q]),
+    }
+
+
+def sweep_figure(results: list[CurvingResult], xvalues: np.ndarray, xlabel: str, title: str, path, logx: bool = False):
+    from . import plots
+
+    fig, axes = plots.plt.subplots(2, 3, figsize=(13, 7), sharex=True)
+    for ax, (label, series) in zip(axes.ravel(), _panel_series(results).items()):
+        for i, name in enumerate(("front wheelset", "rear wheelset")):
+            ax.plot(xvalues, series[:, i], marker="o", ms=3, label=name)
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+        if logx:
+            ax.set_xscale("log")
+    for ax in axes[1]:
+        ax.set_xlabel(xlabel)
+    axes[0, 0].legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    return plots.save(fig, path)
+
+
+# ---- dynamic curve negotiation -----------------------------------------------------------------
+@dataclass
+class RouteRun:
+    """A bogie along a route at constant speed: time histories (records every ``dt``)."""
+
+    route: Route
+    speed_kmh: float
+    time_s: np.ndarray
+    distance_m: np.ndarray
+    states: np.ndarray
+    samples: np.ndarray
+    quantities: dict
+    completed: bool
+
+    def summary(self, flange_time_dt: float) -> dict:
+        q = self.quantities
+        return {
+            "route": self.route.name,
+            "route_length_m": self.route.length,
+            "speed_kmh": self.speed_kmh,
+            "completed": self.completed,
+            "duration_s": float(self.time_s[-1]),
+            "peak_lateral_displacement_m": np.abs(q["lateral_displacement_m"]).max(axis=0).tolist(),
+            "peak_angle_of_attack_rad": np.abs(q["angle_of_attack_rad"]).max(axis=0).tolist(),
+            "peak_guiding_force_n": np.abs(q["guiding_force_n"]).max(axis=0).tolist(),
+            "peak_y_over_q": q["y_over_q"].max(axis=(0, 2)).tolist(),
+            "mean_wear_number_n": q["wear_number_n"].mean(axis=0).tolist(),
+            "flange_contact_time_s": (q["flange_contact"].sum(axis=0) * flange_time_dt).tolist(),
+        }
+
+
+def route_run(
+    model: BogieModel,
+    route: Route,
+    speed_kmh: float,
+    dt: float = 0.01,
+    alignment: TrackProfile | None = None,
+    start_distance_m: float = 0.0,
+) -> RouteRun:
+    """Run one passive bogie along the route at constant speed from the straight equilibrium,
+    through the simulator's one driver; records every interval."""
+    from ..simulator import BatchSimulator
+
+    v = float(check_speed(speed_kmh / KMH, "speed"))
+    track = TrackInput(alignment=alignment, route=route) if alignment is not None else TrackInput(route=route)
+    sim = BatchSimulator(model, 1, dt, (v, v), track=track)
+    sim.set_rows(slice(None), model.equilibrium(v)[None], v, distance=start_distance_m)
+    n_steps = int(math.ceil((route.length - start_distance_m) / (v * dt)))
+    states, speeds = sim.run(n_steps, record_every=1)
+    time = np.arange(states.shape[0]) * dt
+    distance = start_distance_m + v * time
+    samples = track.under_wheelsets(distance, model.params.L1)
+    quantities = wheel_rail_quantities(model, states[:, 0], speeds[:, 0], samples)
+    return RouteRun(route, float(speed_kmh), time, distance, states[:, 0], samples, quantities,
+                    completed=bool(states.shape[0] == n_steps + 1))  # fmt: skip
+
+
+def route_figure(run: RouteRun, path):
+    """Time histories along the route: geometry, displacements, angles of attack, ΣY, Y/Q, wear."""
+    from . import plots
+
+    q = run.quantities
+    s = run.distance_m
+    fig, axes = plots.plt.subplots(6, 1, figsize=(11, 13), sharex=True)
+    ax = axes[0]
+    ax.plot(s, 1e3 * run.samples[:, CURVATURE_FRAME], color="k", label="curvature (1/km)")
+    ax.set_ylabel("curvature (1/km)")
+    twin = ax.twinx()
+    twin.plot(s, 1e3 * 1.5 * np.sin(run.samples[:, CANT_FRAME]), color="tab:red", ls="--")
+    twin.set_ylabel("cant (mm)", color="tab:red")
+    panels = (
+        (1e3 * q["lateral_displacement_m"], "lateral displacement (mm)"),
+        (1e3 * q["angle_of_attack_rad"], "angle of attack (mrad)"),
+        (1e-3 * q["guiding_force_n"], "guiding force ΣY (kN)"),
+        (q["y_over_q"].max(axis=-1), "max Y/Q of the wheelset (-)"),
+        (q["wear_number_n"], "wear number Tγ (N)"),
+    )
+    for ax, (series, label) in zip(axes[1:], panels):
+        for i, name in enumerate(("front wheelset", "rear wheelset")):
+            ax.plot(s, series[:, i], lw=1, label=name)
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[1].legend(loc="best")
+    axes[-1].set_xlabel("distance along the route (m)")
+    fig.suptitle(f"route {run.route.name} at {run.speed_kmh:g} km/h")
+    fig.tight_layout()
+    return plots.save(fig, path)
+
+
+def write_sweep_figures(model: BogieModel, radius_m: float, cant_m: float, speed_kmh: float, direction: str, out: Path) -> dict:
+    """Quantities against radius (cant and speed fixed) and against cant deficiency (radius and
+    speed fixed, cant varied); returns the figure paths."""
+    out = Path(out)
+    radii = np.geomspace(max(500.0, radius_m / 5.0), radius_m * 4.0, 15)
+    by_radius = radius_sweep(model, radii, cant_m, speed_kmh, direction)
+    deficiencies = np.linspace(-0.1, 0.2, 16)
+    by_deficiency = cant_deficiency_sweep(model, radius_m, deficiencies, speed_kmh, direction)
+    return {
+        "against_radius": str(sweep_figure(by_radius, radii, "curve radius (m)",
+                                           f"steady curving at {speed_kmh:g} km/h, cant {1e3 * cant_m:g} mm",
+                                           out / "curving_vs_radius.png", logx=True)),
+        "against_cant_deficiency": str(sweep_figure(by_deficiency, 1e3 * deficiencies, "cant deficiency (mm)",
+                                                    f"steady curving at {speed_kmh:g} km/h, R {radius_m:g} m",
+                                                    out / "curving_vs_cant_deficiency.png")),
+    }  # fmt: skip
