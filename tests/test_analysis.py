@@ -12,7 +12,7 @@ from bogie_env.analysis.ramp import speed_ramp
 from bogie_env.analysis.root_locus import root_locus, track_modes
 from bogie_env.analysis.sensitivity import one_parameter, two_parameter
 from bogie_env.cli import main as cli_main
-from bogie_env.dynamics import BogieModel
+from bogie_env.dynamics import N_TRACK, BogieModel
 from bogie_env.stability import critical_speed
 
 
