@@ -78,28 +78,44 @@ class LoopChooser:
     """
 
     PROBE_EVERY = 100
+    WARM_UP_CALLS = 1  # untimed first calls of each loop (kernel loading, thread-pool start)
 
     def __init__(self, n_rows: int, num_threads: int) -> None:
         self.num_threads = int(num_threads)
         self.enabled = n_rows >= PARALLEL_MIN_ROWS and self.num_threads > 1
         self.seconds = [math.nan, math.nan]  # recent seconds per call: calling thread, pool
+        self.loop_calls = [0, 0]
         self.calls = 0
+
+    def choose(self) -> int:
+        """0: the calling thread, 1: the pool."""
+        untried = [k for k in (0, 1) if math.isnan(self.seconds[k])]
+        if untried:
+            return untried[0]
+        best = 1 if self.seconds[1] < self.seconds[0] else 0
+        return 1 - best if self.calls % self.PROBE_EVERY == 0 else best
+
+    def record(self, loop: int, elapsed: float) -> None:
+        """A probe's time replaces the other loop's old estimate (probes are rare, and a stale
+        slow figure must not outlive a change of load); the loop in use is smoothed."""
+        self.loop_calls[loop] += 1
+        if self.loop_calls[loop] <= self.WARM_UP_CALLS:
+            return
+        old = self.seconds[loop]
+        in_use = not math.isnan(self.seconds[1 - loop]) and not math.isnan(old) and old <= self.seconds[1 - loop]
+        self.seconds[loop] = 0.7 * old + 0.3 * elapsed if in_use else elapsed
 
     def run(self, serial, parallel, *args):
         """``serial(*args)`` or ``parallel(*args)``; returns what it returns."""
         if not self.enabled:
             return serial(*args)
         self.calls += 1
-        untried = [k for k in (0, 1) if math.isnan(self.seconds[k])]
-        best = 1 if self.seconds[1] < self.seconds[0] else 0
-        loop = untried[0] if untried else (1 - best if self.calls % self.PROBE_EVERY == 0 else best)
+        loop = self.choose()
         if loop:
             numba.set_num_threads(self.num_threads)
         start = time.perf_counter()
         result = (parallel if loop else serial)(*args)
-        elapsed = time.perf_counter() - start
-        old = self.seconds[loop]
-        self.seconds[loop] = elapsed if math.isnan(old) else 0.7 * old + 0.3 * elapsed
+        self.record(loop, time.perf_counter() - start)
         return result
 
     @property
