@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Sequence
 
 from bogie_env import cli as library_cli
-from bogie_env.analysis.report import write_text_atomic
+from bogie_env.fileio import write_text_atomic
 from bogie_env.cli import (SEED, argument, backend_options, bogie_options, check_backend_args, command, env_config_from_args,
                            json_option, print_json)  # fmt: skip
 from bogie_env.params import ConfigError
