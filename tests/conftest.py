@@ -26,3 +26,11 @@ def paper_linearization(paper_model):
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests that start a Ray cluster (10-20 s of start-up on 2 cores) run with the slow ones:
+    `make test` stays within its 3 minutes, and CI runs them in `make test-slow`."""
+    for item in items:
+        if "ray_cluster" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)
