@@ -21,6 +21,8 @@ from bogie_env.track import (
     CURVATURE_WHEELSET1, CURVATURE_WHEELSET2, TrackInput, alignment_profile,
 )  # fmt: skip
 
+from .oracles.rk4 import rk4_interval
+
 G = 9.81
 CANT_BASE = 1.5  # m, EN 13803
 
@@ -297,14 +299,7 @@ def test_one_interval_on_a_route_equals_a_python_rk4(paper_model):
         s = s0 + v0 * t + 0.5 * accel * t * t
         return paper_model.rhs(x, v0 + accel * t, track=track.under_wheelsets(s, L1))
 
-    x, h = x0.copy(), dt / n_sub
-    for j in range(n_sub):
-        t = j * h
-        k1 = f(t, x)
-        k2 = f(t + h / 2, x + h / 2 * k1)
-        k3 = f(t + h / 2, x + h / 2 * k2)
-        k4 = f(t + h, x + h * k3)
-        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    x = rk4_interval(f, x0, dt, n_sub)
     scale = np.abs(x - x0) + 1e-12
     assert np.max(np.abs(sim.x[0] - x) / scale) < 1e-6
     assert np.allclose(sim.track_sample[0], track.under_wheelsets(sim.distance[0], L1), rtol=0, atol=1e-15)

@@ -11,6 +11,8 @@ from bogie_env.dynamics import state_index
 from bogie_env.integrate import STATUS_NONFINITE, STATUS_OK, reference_solution, rk4_amplification, stable_substep
 from bogie_env.simulator import BatchSimulator
 
+from .oracles.rk4 import rk4_interval
+
 
 def per_channel(values):
     """Values for the four original channels, zero for any channel added since."""
@@ -166,14 +168,7 @@ def test_one_interval_equals_a_python_rk4_with_track_and_actuators(paper_model):
         yt = np.array([track.alignment.at(s + L1), track.alignment.at(s - L1)])
         return paper_model.rhs(x, v0 + accel * t, inputs=force_matrix() @ u, track=yt)
 
-    x, h = x0.copy(), dt / n_sub
-    for j in range(n_sub):
-        t = j * h
-        k1 = f(t, x)
-        k2 = f(t + h / 2, x + h / 2 * k1)
-        k3 = f(t + h / 2, x + h / 2 * k2)
-        k4 = f(t + h, x + h * k3)
-        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    x = rk4_interval(f, x0, dt, n_sub)
     scale = np.abs(x - x0) + 1e-12
     assert np.max(np.abs(sim.x[0] - x) / scale) < 1e-6
     assert sim.distance[0] == pytest.approx(s0 + v0 * dt + 0.5 * accel * dt * dt, rel=1e-14)
