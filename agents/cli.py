@@ -74,6 +74,19 @@ def cmd_tune(args: argparse.Namespace) -> int:
     return 0
 
 
+def policy_options(func):
+    """--trust-policy, --policy (repeatable) and --workers: the controllers to run and where."""
+    func = argument("--workers", type=int, default=None,
+                    help="CPUs of the local Ray cluster that --backend ray starts (default: all)")(func)  # fmt: skip
+    func = argument("--policy", action="append", required=True,
+                    help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip, needs "
+                         "--trust-policy); repeatable")(func)  # fmt: skip
+    return argument("--trust-policy", action="store_true",
+                    help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your "
+                         "rights; use only for files you made or trust (pretrained is checked against its SHA-256 "
+                         "sums instead)")(func)  # fmt: skip
+
+
 def _env_variant(env_id: str) -> str | None:
     """The config variant behind a registered env id (``--env``)."""
     from bogie_env.envs.registration import IDS
@@ -92,13 +105,7 @@ def _env_variant(env_id: str) -> str | None:
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
 @argument("--env", default="Bogie/Hunting-v0",
           help="env id whose task to evaluate on (its variant; --env-config merges into it), e.g. Bogie/Hunting-v1")
-@argument("--trust-policy", action="store_true",
-          help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your rights; "
-               "use only for files you made or trust (pretrained is checked against its SHA-256 sums instead)")
-@argument("--policy", action="append", required=True,
-          help="passive | skyhook | lqr | lqg | pretrained | PATH (run folder or SB3 .zip, needs --trust-policy); "
-               "repeatable")
-@argument("--workers", type=int, default=None, help="CPUs of the local Ray cluster that --backend ray starts (default: all)")
+@policy_options
 @backend_options
 @bogie_options
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -208,9 +215,7 @@ def cmd_margins(args: argparse.Namespace) -> int:
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--env-config", default=None)
 @argument("--out", required=True, help="output folder, e.g. docs/results")
-@argument("--trust-policy", action="store_true", help="allow loading policy PATHs (an SB3 model file is code)")
-@argument("--policy", action="append", required=True, help="as for evaluate; repeatable")
-@argument("--workers", type=int, default=None, help="CPUs of the local Ray cluster that --backend ray starts (default: all)")
+@policy_options
 @backend_options
 @bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
