@@ -241,6 +241,16 @@ def _sample(yt, k):
 
 
 @njit(cache=True, inline="always")
+def _unbalanced_acceleration(V, kappa, cant):
+    """Eq. (C1), ``V^2 kappa cos(cant) - g sin(cant)``. Without cant (straight track, uncanted
+    curves) it skips the trigonometry: cos(+-0) = 1 and sin(+-0) = +-0 exactly, so the value is
+    the same bit for bit."""
+    if cant == 0.0:
+        return V * V * kappa - GRAVITY * cant
+    return V * V * kappa * np.cos(cant) - GRAVITY * np.sin(cant)
+
+
+@njit(cache=True, inline="always")
 def _rhs_row(x, V, Q, yt, p, out):
     mw = p[P_MW]
     L1 = p[P_L1]
@@ -262,7 +272,7 @@ def _rhs_row(x, V, Q, yt, p, out):
     # acceleration (Eq. C1); exact zeros on straight track without cant.
     kappa_b = _sample(yt, CURVATURE_FRAME)
     cant_b = _sample(yt, CANT_FRAME)
-    accel_b = V * V * kappa_b * np.cos(cant_b) - GRAVITY * np.sin(cant_b)
+    accel_b = _unbalanced_acceleration(V, kappa_b, cant_b)
     frame_force = 0.0 * yb
     frame_moment = 0.0 * yb
     for i in range(2):
@@ -273,7 +283,7 @@ def _rhs_row(x, V, Q, yt, p, out):
         side = 1.0 - 2.0 * i  # +1 front (x = +L1), -1 rear
         kappa = _sample(yt, CURVATURE_WHEELSET1 + i)
         cant = _sample(yt, CANT_WHEELSET1 + i)
-        accel = V * V * kappa * np.cos(cant) - GRAVITY * np.sin(cant)  # Eq. (C1)
+        accel = _unbalanced_acceleration(V, kappa, cant)  # Eq. (C1)
         # The wheelset's track axes seen from the frame's (Eqs. C6-C7, trapezoidal in curvature):
         # heading, lateral offset of the centreline, and their rates.
         d = side * L1

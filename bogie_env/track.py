@@ -138,44 +138,49 @@ def _interpolate(profile, inv_dx, s):
 
 
 @njit(cache=True, inline="always")
-def _route_at(start, length, v0, v1, s):
-    """A route quantity that varies linearly along each segment (empty route: 0); held beyond the ends."""
-    n = start.shape[0]
-    if n == 0:
-        return 0.0
+def _segment(start, s):
+    """Index of the last segment starting at or before s (the first one before the route)."""
     lo = 0
-    hi = n - 1
-    while lo < hi:  # the last segment starting at or before s
+    hi = start.shape[0] - 1
+    while lo < hi:
         mid = (lo + hi + 1) // 2
         if start[mid] <= s:
             lo = mid
         else:
             hi = mid - 1
-    w = (s - start[lo]) / length[lo]
+    return lo
+
+
+@njit(cache=True, inline="always")
+def _route_sample(track, s, out, curvature_column, cant_column):
+    """Curvature and cant angle at distance s into out: both vary linearly along each segment
+    (held beyond the route's ends); one segment search serves both."""
+    lo = _segment(track[ROUTE_START], s)
+    w = (s - track[ROUTE_START][lo]) / track[ROUTE_LENGTH][lo]
     if w < 0.0:
         w = 0.0
     elif w > 1.0:
         w = 1.0
-    return v0[lo] + (v1[lo] - v0[lo]) * w
+    k0 = track[ROUTE_CURVATURE0][lo]
+    c0 = track[ROUTE_CANT0][lo]
+    out[curvature_column] = k0 + (track[ROUTE_CURVATURE1][lo] - k0) * w
+    out[cant_column] = math.asin((c0 + (track[ROUTE_CANT1][lo] - c0) * w) / CANT_BASE_M)
 
 
 @njit(cache=True, inline="always")
 def sample_track(track, s, L1, out):
-    """The track samples (TRACK_SAMPLES) of a bogie whose centre is at distance s, into out."""
+    """The track samples (TRACK_SAMPLES) of a bogie whose centre is at distance s, into out.
+
+    Without a route (straight track) the curvature and cant samples are exact zeros."""
     out[ALIGNMENT_WHEELSET1] = _interpolate(track[TRACK_ALIGNMENT], track[TRACK_ALIGNMENT_INV_DX], s + L1)
     out[ALIGNMENT_WHEELSET2] = _interpolate(track[TRACK_ALIGNMENT], track[TRACK_ALIGNMENT_INV_DX], s - L1)
-    start = track[ROUTE_START]
-    length = track[ROUTE_LENGTH]
-    k0 = track[ROUTE_CURVATURE0]
-    k1 = track[ROUTE_CURVATURE1]
-    c0 = track[ROUTE_CANT0]
-    c1 = track[ROUTE_CANT1]
-    out[CURVATURE_WHEELSET1] = _route_at(start, length, k0, k1, s + L1)
-    out[CURVATURE_WHEELSET2] = _route_at(start, length, k0, k1, s - L1)
-    out[CURVATURE_FRAME] = _route_at(start, length, k0, k1, s)
-    out[CANT_WHEELSET1] = math.asin(_route_at(start, length, c0, c1, s + L1) / CANT_BASE_M)
-    out[CANT_WHEELSET2] = math.asin(_route_at(start, length, c0, c1, s - L1) / CANT_BASE_M)
-    out[CANT_FRAME] = math.asin(_route_at(start, length, c0, c1, s) / CANT_BASE_M)
+    if track[ROUTE_START].shape[0] == 0:
+        for k in range(CURVATURE_WHEELSET1, N_TRACK_SAMPLES):
+            out[k] = 0.0
+        return
+    _route_sample(track, s + L1, out, CURVATURE_WHEELSET1, CANT_WHEELSET1)
+    _route_sample(track, s - L1, out, CURVATURE_WHEELSET2, CANT_WHEELSET2)
+    _route_sample(track, s, out, CURVATURE_FRAME, CANT_FRAME)
 
 
 def alignment_profile(
