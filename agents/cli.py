@@ -5,6 +5,7 @@
     bogie results --policy passive --policy lqr --out results/table
     bogie results ... --backend ray [--address HOST:PORT]       (one Ray task per controller and part)
     bogie margins --policy lqr --policy pretrained --speeds 300,400,500
+    bogie margins --env Bogie/Hunting-v1 --policy passive --policy lqg --conicity 0.05 --json
     bogie tune --algo ppo --trials 4 --out runs/tune_ppo          (needs the [distributed] extra)
 
 The library stands alone (``python -m bogie_env.cli`` has the analysis commands); this module
@@ -168,8 +169,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 @command("margins", "stability margins of a controller's loop (gain, phase, delay, disk) per speed and actuator")
 @json_option
 @argument("--out", default=None, help="write the JSON result here as well (atomically)")
+@argument("--conicity", type=float, default=None,
+          help="equivalent conicity lam of the plant (the v1 scenario's 'conicity'; default: the bogie's own, 0.025)")
 @argument("--speeds", default="300,350,400,450,500", help="comma-separated speeds, km/h")
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
+@argument("--env", default="Bogie/Hunting-v0",
+          help="env id whose task the loop is (its variant; --env-config merges into it), e.g. Bogie/Hunting-v1: "
+               "its sensor filters and loop delay enter the loop")
 @argument("--trust-policy", action="store_true",
           help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your rights")
 @argument("--policy", action="append", required=True,
@@ -186,7 +192,13 @@ def cmd_margins(args: argparse.Namespace) -> int:
     from .margins import format_table, margins_table
     from .policies import load_policy
 
-    env_config = env_config_from_args(args)
+    from .margins import check_conicity
+
+    env_config = env_config_from_args(args, _env_variant(args.env))
+    try:
+        check_conicity(args.conicity)
+    except ConfigError as error:
+        raise ConfigError(f"--conicity: {error}") from None
     try:
         speeds = [float(v) for v in args.speeds.split(",") if v.strip()]
     except ValueError:
@@ -197,8 +209,9 @@ def cmd_margins(args: argparse.Namespace) -> int:
         raise ConfigError(f"--speeds {args.speeds!r}: give one or more speeds in [{MIN_SPEED_KMH:g}, {MAX_SPEED_KMH:g}] km/h")
     results = []
     for spec in args.policy:
-        results.append({"policy": spec, "margins": margins_table(load_policy(spec, env_config, args.trust_policy), env_config, speeds)})
-    payload = {"policies": results}
+        policy = load_policy(spec, env_config, args.trust_policy)
+        results.append({"policy": spec, "margins": margins_table(policy, env_config, speeds, conicity=args.conicity)})
+    payload = {"env_id": args.env, "env_version": args.env.rsplit("-", 1)[-1], "policies": results}
     if args.out:
         write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
     if args.json:

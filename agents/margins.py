@@ -39,7 +39,7 @@ bogie, with per-loop gain factors and extra delays (to a fraction of ``dt``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -48,11 +48,17 @@ from bogie_env.actuators import CH_DELAY_STEPS, CHANNEL_NAMES, FORCE, channel_ta
 from bogie_env.dynamics import N_INPUTS, N_STATES, BogieModel, state_index
 from bogie_env.envs import task as T
 from bogie_env.envs.config import bogie_params, merge_config
+from bogie_env.envs.scenario import RANGES
+from bogie_env.envs.sensors import N_SENSED, S_FILTER_WEIGHT, SENSOR_NAMES, sensor_table
 from bogie_env.envs.task import STATE_SCALES
 from bogie_env.params import ConfigError
 from bogie_env.stability import KMH
 
 from .controllers import discretize
+from .linear_models import (ControllerModel, finite_difference_jacobian, residual_controller_model, sb3_action,  # noqa: F401
+                            sb3_action_function, sb3_controller_model, sb3_jacobian_autograd, static_model)  # fmt: skip
+
+_static = static_model
 
 CHANNELS = CHANNEL_NAMES
 #: The speeds of the margins table, km/h.
@@ -68,8 +74,11 @@ DEFAULT_SPEEDS_KMH = (300.0, 350.0, 400.0, 450.0, 500.0)
 class PlantModel:
     """The sampled plant from the normalised command u (n_act) to the observation y.
 
-    State ``[x (20), F (n_act), u_{n-1}, ..., u_{n-d}]``; ``y_n = C s_n`` (no feedthrough:
-    the observation of step n is taken at the end of the previous interval).
+    State ``[x (20), F (n_act), command registers, sensor filters]``: the channels' command
+    shift registers (``delay_steps[j]`` states for channel j, the oldest feeding the lag) and
+    the anti-alias filter states of the measured observation entries (``filter_rows``), each
+    holding the previous sample's filtered value. ``y_n = C s_n`` (no feedthrough: the
+    observation of step n is taken at the end of the previous interval).
     """
 
     a: np.ndarray
@@ -82,10 +91,27 @@ class PlantModel:
     active: list[int]
     max_force: np.ndarray
     bandwidth: np.ndarray  # rad/s
-    delay_steps: int
+    delay_steps: tuple[int, ...]  # per active channel
     observation_type: str
     include_actuators: bool
     model: BogieModel = field(repr=False)
+    filter_rows: tuple[int, ...] = ()  # observation entries passed through the sensor filter
+    filter_weight: np.ndarray = field(default_factory=lambda: np.zeros(0))  # weight of the new sample
+    c_clean: np.ndarray | None = None  # the observation before the sensor filters
+    filter_start: int = 0  # index of the first filter state
+
+    def settled_state(self, dx: np.ndarray, dforce: np.ndarray | None = None) -> np.ndarray:
+        """The plant state for a deviation ``dx`` (20,) of the bogie and ``dforce`` of the
+        channel forces, with empty command registers and the sensor filters settled on it (as
+        the env starts an episode: its first observation is unfiltered)."""
+        s = np.zeros(self.a.shape[0])
+        s[:N_STATES] = dx
+        if dforce is not None:
+            s[N_STATES:N_STATES + self.n_act] = dforce
+        if self.filter_rows:
+            start = self.filter_start
+            s[start:start + len(self.filter_rows)] = (self.c_clean @ s)[list(self.filter_rows)]
+        return s
 
     @property
     def n_act(self) -> int:
@@ -94,6 +120,32 @@ class PlantModel:
     @property
     def channel_names(self) -> list[str]:
         return [CHANNELS[k] for k in self.active]
+
+    def with_extra_delay(self, extra_steps) -> "PlantModel":
+        """The same plant with ``extra_steps[j]`` more whole steps of command delay in channel j
+        (a shift register in front of the plant's input; new states at the end)."""
+        extra = np.broadcast_to(np.asarray(extra_steps, dtype=int), (self.n_act,))
+        if np.any(extra < 0):
+            raise ValueError(f"extra_steps = {extra_steps!r} must be >= 0")
+        n, m = self.a.shape[0], self.n_act
+        total = int(extra.sum())
+        a = np.zeros((n + total, n + total))
+        b = np.zeros((n + total, m))
+        a[:n, :n] = self.a
+        pos = n
+        for j, e in enumerate(extra):
+            if e == 0:
+                b[:n, j] = self.b[:, j]
+                continue
+            b[pos, j] = 1.0
+            for i in range(1, e):
+                a[pos + i, pos + i - 1] = 1.0
+            a[:n, pos + e - 1] = self.b[:, j]
+            pos += e
+        c = np.hstack([self.c, np.zeros((self.c.shape[0], total))])
+        c_clean = None if self.c_clean is None else np.hstack([self.c_clean, np.zeros((self.c.shape[0], total))])
+        delays = tuple(int(d + e) for d, e in zip(self.delay_steps, extra))
+        return replace(self, a=a, b=b, c=c, c_clean=c_clean, delay_steps=delays)
 
 
 def _active_channels(config: dict) -> list[int]:
@@ -107,11 +159,23 @@ def _active_channels(config: dict) -> list[int]:
     return active
 
 
-def _delay_steps(config: dict, active: list[int]) -> int:
-    delays = {config["actuators"][CHANNELS[k]]["delay_steps"] for k in active}
-    if len(delays) > 1:
-        raise ConfigError(f"margins: all active channels must share one delay_steps; got {sorted(delays)}")
-    return delays.pop() if delays else 0
+def _delay_steps(config: dict, active: list[int]) -> tuple[int, ...]:
+    """Each active channel's command delay, whole control steps."""
+    return tuple(int(config["actuators"][CHANNELS[k]]["delay_steps"]) for k in active)
+
+
+def sensor_filters(config: dict) -> tuple[tuple[int, ...], np.ndarray]:
+    """The observation entries the env's sensor model filters, and each filter's weight.
+
+    With ``sensors.enabled`` the env passes the first ``N_SENSED`` observation entries (the six
+    sensors and the speed) through ``f_n = f_{n-1} + w (y_n - f_{n-1})``,
+    ``w = 1 - exp(-2 pi f_c dt)`` (``bogie_env.envs.sensors.sense_rows``), and observes ``f_n``;
+    the actuator-force entries are exact. Without it, nothing is filtered.
+    """
+    if not config.get("sensors", {}).get("enabled"):
+        return (), np.zeros(0)
+    weights = sensor_table(config["sensors"], config["dt"])[:, S_FILTER_WEIGHT]
+    return tuple(range(N_SENSED)), np.asarray(weights, dtype=float)
 
 
 def observe(x: np.ndarray, force: np.ndarray, speed: float, plant_config: dict, model: BogieModel) -> np.ndarray:
@@ -180,10 +244,6 @@ def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = No
     active = _active_channels(config)
     if not active:
         raise ConfigError("margins: no active actuator channel; every actuators.*.mode is 'off'")
-    if config.get("sensors", {}).get("enabled"):
-        # the v1 sensor model filters each channel: phase lag the linear loop does not hold yet
-        raise ConfigError("margins: sensors.enabled = true (the v1 sensor model) is not supported yet; "
-                          "allowed: sensors.enabled = false")
     if model is None:
         model = BogieModel(bogie_params(config))
     speed = speed_kmh / KMH
@@ -207,49 +267,42 @@ def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = No
     b_c = np.zeros((n, n_act))
     b_c[N_STATES:, :] = np.diag(bandwidth * max_force)
     ad, bd = discretize(a_c, b_c, config["dt"])
-    d = _delay_steps(config, active)
-    # shift register: the ZOH target is the command of d intervals ago
-    n_all = n + d * n_act
+    delays = _delay_steps(config, active)
+    rows, weights = sensor_filters(config)
+    n_reg, n_f = sum(delays), len(rows)
+    n_all = n + n_reg + n_f
     a = np.zeros((n_all, n_all))
     b = np.zeros((n_all, n_act))
     a[:n, :n] = ad
-    if d == 0:
-        b[:n] = bd
-    else:
-        a[:n, n + (d - 1) * n_act:] = bd
-        b[n:n + n_act] = np.eye(n_act)
+    # command shift registers: the ZOH target of channel j is its command of d_j intervals ago
+    pos = n
+    for j, d in enumerate(delays):
+        if d == 0:
+            b[:n, j] = bd[:, j]
+            continue
+        b[pos, j] = 1.0  # the newest command
         for i in range(1, d):
-            a[n + i * n_act:n + (i + 1) * n_act, n + (i - 1) * n_act:n + i * n_act] = np.eye(n_act)
+            a[pos + i, pos + i - 1] = 1.0
+        a[:n, pos + d - 1] = bd[:, j]  # the oldest drives the lag
+        pos += d
     c_xf = _observation_jacobian(x_eq, force_eq, speed, config, model)
     c = np.zeros((c_xf.shape[0], n_all))
     c[:, :n] = c_xf
-    return PlantModel(a, b, c, config["dt"], speed, np.asarray(x_eq, float), force_eq, active, max_force, bandwidth, d,
-                      config["observation"]["type"], bool(config["observation"]["include_actuators"]), model)  # fmt: skip
+    c_clean = c.copy()
+    # sensor filters: y_n = (1 - w) f_{n-1} + w C s_n is observed and becomes the next state
+    for i, (row, w) in enumerate(zip(rows, weights)):
+        clean = c[row].copy()
+        c[row] = w * clean
+        c[row, n + n_reg + i] = 1.0 - w
+        a[n + n_reg + i] = c[row]
+    return PlantModel(a, b, c, config["dt"], speed, np.asarray(x_eq, float), force_eq, active, max_force, bandwidth, delays,
+                      config["observation"]["type"], bool(config["observation"]["include_actuators"]), model,
+                      tuple(rows), np.asarray(weights), c_clean, n + n_reg)  # fmt: skip
 
 
 # =============================================================================================
 # Controllers as discrete state spaces
 # =============================================================================================
-
-
-@dataclass
-class ControllerModel:
-    """``c+ = a c + b y``, ``u = c_ c + d y`` (y: observation, u: normalised command)."""
-
-    a: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    d: np.ndarray
-    method: str  # how it was obtained
-
-    @property
-    def n_states(self) -> int:
-        return self.a.shape[0]
-
-
-def _static(d: np.ndarray, method: str) -> ControllerModel:
-    m, p = d.shape
-    return ControllerModel(np.zeros((0, 0)), np.zeros((0, p)), np.zeros((m, 0)), d, method)
 
 
 def skyhook_model(policy, n_obs: int) -> ControllerModel:
@@ -329,74 +382,23 @@ def _is_sb3(policy) -> bool:
     return hasattr(getattr(getattr(policy, "model", None), "policy", None), "_predict")
 
 
-def sb3_action_function(policy):
-    """The SB3 policy's deterministic action as a float64 torch function of the observation:
-    VecNormalize scaling and clipping, the network (a float64 copy), the action-box clip."""
-    import copy
-
-    import torch
-
-    from stable_baselines3.common.policies import ActorCriticPolicy
-
-    net = policy.model.policy
-    # PPO/A2C: the actor's layers in float64 (SB3's own _predict casts observations to float32)
-    double = isinstance(net, ActorCriticPolicy) and not net.squash_output
-    dtype = torch.float64 if double else torch.float32
-    if double:
-        net = copy.deepcopy(net).double()
-    normalised = policy.obs_mean is not None
-    mean = torch.as_tensor(policy.obs_mean if normalised else 0.0, dtype=dtype)
-    var = torch.as_tensor(policy.obs_var if normalised else 1.0, dtype=dtype)
-    eps = policy.epsilon if normalised else 0.0
-    clip = policy.clip_obs if normalised else math.inf
-
-    def deterministic(z: torch.Tensor) -> torch.Tensor:
-        if double:
-            return net.action_net(net.mlp_extractor.forward_actor(net.pi_features_extractor(z)))
-        return net._predict(z, deterministic=True)
-
-    def action(y: torch.Tensor) -> torch.Tensor:
-        y = y.to(dtype)
-        z = torch.clamp((y - mean) / torch.sqrt(var + eps), -clip, clip)
-        return torch.clamp(deterministic(z[None])[0], -1.0, 1.0).double()
-
-    return action
-
-
-def sb3_action(policy, y: np.ndarray) -> np.ndarray:
-    """The SB3 policy's action at one observation, in float64 (``act`` rounds to float32)."""
-    import torch
-
-    with torch.no_grad():
-        return sb3_action_function(policy)(torch.as_tensor(np.asarray(y, dtype=np.float64))).numpy()
-
-
-def sb3_jacobian_autograd(policy, y0: np.ndarray) -> np.ndarray:
-    """d(action)/d(observation) of an SB3 policy through the VecNormalize scaling and clipping,
-    by torch autograd on the deterministic action (clipped to the action box as ``predict`` does)."""
-    import torch
-
-    jac = torch.autograd.functional.jacobian(sb3_action_function(policy), torch.as_tensor(np.asarray(y0, dtype=np.float64)))
-    return jac.detach().numpy()
-
-
-def finite_difference_jacobian(policy, y0: np.ndarray, step: float = 1e-3) -> np.ndarray:
-    """Central differences of ``policy.act`` at ``y0`` (a stateless policy); ``step`` in the
-    observation's scaled units (float32 policies need about 1e-3)."""
-    y0 = np.asarray(y0, dtype=np.float64)
-    n = y0.size
-    probes = np.repeat(y0[None], 2 * n, axis=0)
-    probes[np.arange(n), np.arange(n)] += step
-    probes[n + np.arange(n), np.arange(n)] -= step
-    policy.reset(2 * n)
-    out = np.asarray(policy.act(probes.astype(np.float32)), dtype=np.float64)
-    return ((out[:n] - out[n:]) / (2 * step)).T
-
-
 def controller_model(policy, n_obs: int, speed_kmh: float, y0: np.ndarray) -> ControllerModel:
-    """The controller's linear model at the operating observation ``y0``."""
+    """The controller's linear model at the operating observation ``y0``.
+
+    A policy's own ``controller_model(n_obs, speed_kmh, y0)`` method comes first (the hook of
+    :mod:`bogie_agents.linear_models`); then the classical controllers' matrices, SB3 policies by
+    autograd, anything else by finite differences of ``act`` (assumed stateless).
+    """
     from .controllers import LQGController, LQRController, PassiveController, SkyhookController
 
+    hook = getattr(policy, "controller_model", None)
+    if callable(hook):
+        ctrl = hook(n_obs, speed_kmh, np.asarray(y0, dtype=float))
+        if not isinstance(ctrl, ControllerModel):
+            raise TypeError(f"{type(policy).__name__}.controller_model returned {type(ctrl).__name__}; "
+                            "expected bogie_agents.linear_models.ControllerModel")  # fmt: skip
+        ctrl.check_shapes(n_obs, ctrl.d.shape[0])
+        return ctrl
     if isinstance(policy, PassiveController):
         return _static(np.zeros((policy.action_dim, n_obs)), "zero (passive)")
     if isinstance(policy, SkyhookController):
@@ -406,7 +408,7 @@ def controller_model(policy, n_obs: int, speed_kmh: float, y0: np.ndarray) -> Co
     if isinstance(policy, LQRController):
         return lqr_model(policy, n_obs, speed_kmh)
     if _is_sb3(policy):
-        return _static(sb3_jacobian_autograd(policy, y0), "SB3 policy, torch autograd through VecNormalize")
+        return sb3_controller_model(policy, y0)
     return _static(finite_difference_jacobian(policy, y0), "finite differences of act (assumed stateless)")
 
 
@@ -418,8 +420,12 @@ def check_controller_model(policy, ctrl: ControllerModel, y0: np.ndarray, u0: np
     rng = np.random.default_rng(seed)
     dy = amplitude * rng.standard_normal((steps, y0.size))
     policy.reset(1)
-    for _ in range(3):  # settle at the operating point (skyhook's first step has no previous yaw)
-        policy.act(y0[None].astype(np.float32))
+    previous = None
+    for i in range(1000 if ctrl.n_states else 3):  # settle at the operating point (skyhook's first step has no previous yaw)
+        u = np.asarray(policy.act(y0[None].astype(np.float32)), dtype=float)
+        if i >= 3 and np.max(np.abs(u - previous)) <= 1e-7:
+            break
+        previous = u
     c = np.zeros(ctrl.n_states)
     worst, scale = 0.0, 1e-12
     for n in range(steps):
@@ -438,8 +444,49 @@ def check_controller_model(policy, ctrl: ControllerModel, y0: np.ndarray, u0: np
 
 
 def policy_config(env_config: dict, policy) -> dict:
-    """The env config the policy runs in (its observation type)."""
-    return merge_config(env_config, {"observation": {"type": getattr(policy, "observation_type", "sensors")}})
+    """The env config the policy runs in: its observation type. A full-state observation has
+    no sensor model (the env refuses ``sensors.enabled`` with it), so it is switched off."""
+    observation_type = getattr(policy, "observation_type", "sensors")
+    update: dict[str, Any] = {"observation": {"type": observation_type}}
+    if observation_type == "state":
+        update["sensors"] = {"enabled": False}
+    return merge_config(env_config, update)
+
+
+def check_conicity(conicity: float | None) -> float | None:
+    """``conicity`` validated against the v1 scenario's allowed range (None: the bogie's own)."""
+    if conicity is None:
+        return None
+    r = RANGES["conicity"]
+    if isinstance(conicity, bool) or not isinstance(conicity, (int, float)) or not r.low <= conicity <= r.high:
+        raise ConfigError(f"margins: conicity = {conicity!r} is not allowed; allowed: a number in [{r.low:g}, {r.high:g}] "
+                          "(the equivalent conicity lam, as the v1 scenario's 'conicity')")  # fmt: skip
+    return float(conicity)
+
+
+def plant_bogie(config: dict, conicity: float | None = None) -> BogieModel:
+    """The nominal bogie of ``config`` with the equivalent conicity ``lam`` replaced (as the v1
+    scenario's ``conicity`` does; None: the preset's own)."""
+    params = bogie_params(config)
+    conicity = check_conicity(conicity)
+    return BogieModel(params if conicity is None else params.replace(lam=conicity))
+
+
+def _command(policy, y: np.ndarray, n_states: int) -> np.ndarray:
+    """The policy's steady action at a constant observation ``y`` (float64 where possible)."""
+    steady = getattr(policy, "steady_action", None)
+    if callable(steady):
+        return np.asarray(steady(np.asarray(y, dtype=float)), dtype=float)
+    if _is_sb3(policy) and not callable(getattr(policy, "controller_model", None)):
+        return sb3_action(policy, y)
+    policy.reset(1)
+    u = np.asarray(policy.act(y[None].astype(np.float32)), dtype=float)[0]
+    for _ in range(1000 if n_states else 0):  # a dynamic controller: until its states settle
+        u_next = np.asarray(policy.act(y[None].astype(np.float32)), dtype=float)[0]
+        if np.max(np.abs(u_next - u)) <= 1e-7:
+            return u_next
+        u = u_next
+    return u
 
 
 def operating_point(policy, config: dict, speed_kmh: float, model: BogieModel,
@@ -447,7 +494,9 @@ def operating_point(policy, config: dict, speed_kmh: float, model: BogieModel,
     """The closed loop's equilibrium ``(x, F, u)`` at a fixed speed on perfect track.
 
     Linear controllers command zero at rest; a learned policy may not (a bias), so its
-    equilibrium is solved by Newton's method on ``f(x, G F) = 0, F = F_max u(y(x, F))``.
+    equilibrium is solved by Newton's method on ``f(x, G F) = 0, F = F_max u(y(x, F))``, with the
+    controller's steady-state gain (:meth:`ControllerModel.dc_gain`) in the Jacobian. The sensor
+    filters are settled there (their output is the clean observation).
     """
     active = _active_channels(config)
     n_act = len(active)
@@ -455,17 +504,13 @@ def operating_point(policy, config: dict, speed_kmh: float, model: BogieModel,
     max_force = np.array([config["actuators"][CHANNELS[k]]["max_force"] for k in active])
     x = model.equilibrium(speed)
     force = np.zeros(n_act)
-
-    def command(x, force):
-        y = observe(x[None], force[None], speed, config, model)
-        if _is_sb3(policy):
-            return sb3_action(policy, y[0]), y[0]
-        policy.reset(1)
-        return np.asarray(policy.act(y.astype(np.float32)), dtype=float)[0], y[0]
-
-    u, y = command(x, force)
+    y = observe(x[None], force[None], speed, config, model)[0]
+    ctrl = controller_model(policy, y.size, speed_kmh, y)
+    u = _command(policy, y, ctrl.n_states)
     if np.max(np.abs(u)) < 1e-9:  # linear controllers: zero up to rounding of the zero lateral states
         return x, force, np.zeros(n_act)
+    precise = callable(getattr(policy, "steady_action", None)) or (_is_sb3(policy) and not callable(getattr(policy, "controller_model", None)))
+    force_tol = 1e-6 if precise else 1e-2  # N: float32 actions round at about 1e-7 of max_force
     b_f = model.input_matrix() @ force_matrix(active)
     for _ in range(max_iter):
         u4 = np.zeros(N_INPUTS)
@@ -475,18 +520,17 @@ def operating_point(policy, config: dict, speed_kmh: float, model: BogieModel,
         g = force - max_force * u
         residual = np.concatenate([f, g])
         ctrl = controller_model(policy, y.size, speed_kmh, y)
-        if ctrl.n_states:
-            raise ConfigError("margins: a dynamic controller with a non-zero command at rest is not supported")
         c_xf = _observation_jacobian(x, force, speed, config, model)
         jac = np.zeros((N_STATES + n_act, N_STATES + n_act))
         jac[:N_STATES, :N_STATES] = model.jacobian(x, speed, inputs=q)
         jac[:N_STATES, N_STATES:] = b_f
-        jac[N_STATES:] = -np.diag(max_force) @ ctrl.d @ c_xf
+        jac[N_STATES:] = -np.diag(max_force) @ ctrl.dc_gain() @ c_xf
         jac[N_STATES:, N_STATES:] += np.eye(n_act)
         step = np.linalg.solve(jac, -residual)  # lstsq would drop the stiff-soft direction (cond ~1e15)
         x, force = x + step[:N_STATES], force + step[N_STATES:]
-        u, y = command(x, force)
-        if np.max(np.abs(step[:N_STATES])) < tol and np.max(np.abs(step[N_STATES:])) < 1e-6:
+        y = observe(x[None], force[None], speed, config, model)[0]
+        u = _command(policy, y, ctrl.n_states)
+        if np.max(np.abs(step[:N_STATES])) < (tol if precise else 1e-9) and np.max(np.abs(step[N_STATES:])) < force_tol:
             break
     else:
         raise RuntimeError(f"margins: the closed-loop equilibrium at {speed_kmh} km/h did not converge "
@@ -522,6 +566,25 @@ class LinearLoop:
         """ln|z|max / dt: the slowest decay (negative) or fastest growth (positive), 1/s."""
         return float(np.log(np.max(np.abs(self.eigenvalues(gains)))) / self.dt)
 
+    def with_extra_delay(self, extra_steps) -> "LinearLoop":
+        """The loop with ``extra_steps`` (scalar: every channel; or per channel) more whole steps
+        of command delay."""
+        return replace(self, plant=self.plant.with_extra_delay(extra_steps))
+
+    def tolerated_extra_steps(self, channel: int | None = None, max_steps: int = 30) -> int | None:
+        """The most whole extra steps of delay (in ``channel`` only, or in every channel at once
+        for None) for which the closed-loop matrix stays stable, every count from 0 up to it
+        stable; None: stable up to ``max_steps``; -1: the nominal loop is unstable."""
+        for k in range(max_steps + 1):
+            extra = np.zeros(self.plant.n_act, dtype=int)
+            if channel is None:
+                extra[:] = k
+            else:
+                extra[channel] = k
+            if np.max(np.abs(self.with_extra_delay(extra).eigenvalues())) >= 1.0:
+                return k - 1
+        return None
+
     def broken_loop(self, k: int):
         """L_k: loop k broken at its command, the others closed (negative-feedback convention)."""
         import control
@@ -547,11 +610,14 @@ class LinearLoop:
         return control.ss(a, b, out, np.zeros((p.n_act, p.n_act)), self.dt)
 
 
-def linear_loop(policy, env_config: dict, speed_kmh: float, model: BogieModel | None = None) -> LinearLoop:
-    """Linearise ``policy`` in the loop at ``speed_kmh`` (nominal bogie of ``env_config``)."""
+def linear_loop(policy, env_config: dict, speed_kmh: float, model: BogieModel | None = None,
+                conicity: float | None = None) -> LinearLoop:  # fmt: skip
+    """Linearise ``policy`` in the loop at ``speed_kmh``: the nominal bogie of ``env_config``
+    (with ``conicity`` as its ``lam`` if given; ``model`` overrides both), its actuators'
+    lags and delays, its sensor filters if ``sensors.enabled``."""
     config = policy_config(env_config, policy)
     if model is None:
-        model = BogieModel(bogie_params(config))
+        model = plant_bogie(config, conicity)
     x_eq, force_eq, u_eq = operating_point(policy, config, speed_kmh, model)
     plant = plant_model(config, speed_kmh, force_eq=force_eq, x_eq=x_eq, model=model)
     y0 = observe(x_eq[None], force_eq[None], speed_kmh / KMH, config, model)[0]
@@ -619,30 +685,51 @@ def siso_margins(loop, omega: np.ndarray) -> dict[str, Any]:
     }
 
 
+#: Whole extra steps of delay checked by the closed-loop eigenvalues (0.3 s at dt = 10 ms).
+MAX_EXTRA_DELAY_STEPS = 30
+#: The speeds of the summary (issue 10's floors: 300-450 km/h).
+SUMMARY_SPEEDS_KMH = (300.0, 450.0)
+
+
 def loop_margins(loop: LinearLoop, omega: np.ndarray | None = None) -> dict[str, Any]:
-    """Margins of every actuator loop and the simultaneous disk margin, at one speed."""
+    """Margins of every actuator loop and the simultaneous disk margin, at one speed.
+
+    Per loop, beside python-control's margins: ``delay_margin_steps``, the most whole extra
+    steps of delay in that loop alone for which the closed-loop matrix stays stable (None:
+    stable up to :data:`MAX_EXTRA_DELAY_STEPS`); it agrees with ``delay_margin_s`` as
+    ``floor(delay_margin_s / dt)`` (a whole-step delay ``z^-k`` is exactly the phase lag
+    ``omega k dt`` of the sampled loop). ``all_loops_extra_delay_steps``: the same with every
+    channel delayed at once (a slower loop computer).
+    """
     import control
 
     omega = frequency_grid(loop.dt) if omega is None else omega
     eig = loop.eigenvalues()
     radius = float(np.max(np.abs(eig)))
     stable = radius < 1.0
+    names = loop.plant.channel_names
+    delays_s = [d * loop.dt for d in loop.plant.delay_steps]
     out: dict[str, Any] = {
         "speed_kmh": loop.speed_kmh,
         "closed_loop_stable": bool(stable),
         "closed_loop_growth_rate_per_s": math.log(radius) / loop.dt,
-        "existing_delay_s": loop.plant.delay_steps * loop.dt,
+        "existing_delay_s": max(delays_s) if delays_s else 0.0,
         "controller_model": loop.ctrl.method,
         "command_at_rest": [float(v) for v in loop.u_eq],
         "loops": {},
     }
     if not stable:
-        out["loops"] = {name: None for name in loop.plant.channel_names}
+        out["loops"] = {name: None for name in names}
         out["simultaneous_disk_margin"] = None
-        out["gain_margin"] = out["delay_margin_s"] = None
+        out["gain_margin"] = out["delay_margin_s"] = out["all_loops_extra_delay_steps"] = None
+        out["gain_margin_lower"] = None
         return out
-    for k, name in enumerate(loop.plant.channel_names):
-        out["loops"][name] = siso_margins(loop.broken_loop(k), omega)
+    for k, name in enumerate(names):
+        m = siso_margins(loop.broken_loop(k), omega)
+        m["existing_delay_s"] = delays_s[k]
+        m["delay_margin_steps"] = loop.tolerated_extra_steps(k, MAX_EXTRA_DELAY_STEPS)
+        out["loops"][name] = m
+    out["all_loops_extra_delay_steps"] = loop.tolerated_extra_steps(None, MAX_EXTRA_DELAY_STEPS)
     try:
         dm, dgm, dpm = control.disk_margins(loop.input_loop(), omega, skew=0.0)
         out["simultaneous_disk_margin"] = {"disk_margin": _none_if_inf(float(dm)), "disk_gain_margin_db": _none_if_inf(float(dgm)),
@@ -652,34 +739,73 @@ def loop_margins(loop: LinearLoop, omega: np.ndarray | None = None) -> dict[str,
     gms = [v["gain_margin"] for v in out["loops"].values() if v["gain_margin"] is not None]
     dms = [v["delay_margin_s"] for v in out["loops"].values() if v["delay_margin_s"] is not None]
     out["gain_margin"] = min(gms) if gms else None  # worst loop; None: unbounded
+    out["gain_margin_lower"] = max(v["gain_margin_lower"] for v in out["loops"].values())
     out["delay_margin_s"] = min(dms) if dms else None
     return out
 
 
-def margins_table(policy, env_config: dict, speeds_kmh=DEFAULT_SPEEDS_KMH) -> dict[str, Any]:
-    """The ``margins`` entry: per speed and per loop, and the worst case over the speeds.
+def _worst(rows: list[dict[str, Any]], key: str, pick=min) -> Any:
+    """The worst ``key`` over rows whose closed loop is stable (None entries: unbounded)."""
+    values = [r[key] for r in rows if r[key] is not None]
+    return pick(values) if values else None
 
-    Worst case: the least gain and delay margins over speeds and loops; None when the nominal
-    loop is unstable at some speed (``unstable_at_kmh`` lists where).
+
+def summarise(per_speed: list[dict[str, Any]], low_kmh: float, high_kmh: float) -> dict[str, Any]:
+    """Worst margins over the rows with ``low_kmh <= speed <= high_kmh``; the margins are None
+    (meaningless) when the closed loop is unstable at one of them."""
+    rows = [r for r in per_speed if low_kmh <= r["speed_kmh"] <= high_kmh]
+    unstable = [r["speed_kmh"] for r in rows if not r["closed_loop_stable"]]
+    ok = bool(rows) and not unstable
+    return {
+        "speed_range_kmh": [low_kmh, high_kmh],
+        "speeds_kmh": [r["speed_kmh"] for r in rows],
+        "closed_loop_stable": ok,
+        "unstable_at_kmh": unstable,
+        "gain_margin": _worst(rows, "gain_margin") if ok else None,
+        "gain_margin_lower": _worst(rows, "gain_margin_lower", max) if ok else None,
+        "delay_margin_s": _worst(rows, "delay_margin_s") if ok else None,
+        "all_loops_extra_delay_steps": _worst(rows, "all_loops_extra_delay_steps") if ok else None,
+    }
+
+
+def margins_table(policy, env_config: dict, speeds_kmh=DEFAULT_SPEEDS_KMH, conicity: float | None = None) -> dict[str, Any]:
+    """The ``margins`` entry: per speed and per loop, the worst case over the speeds, and the
+    ``summary`` over 300-450 km/h.
+
+    ``env_config``: a full env config (``make_config``; v0 or v1 variant); the plant is its
+    nominal bogie, with ``conicity`` as ``lam`` if given, its actuators' lags and delays, and
+    its sensor filters if ``sensors.enabled``; noise, bias and track irregularity are off, the
+    force-rate limit is inactive (small signals). Worst case: the least gain and delay margins
+    over speeds and loops; None when the nominal loop is unstable at some speed
+    (``unstable_at_kmh`` lists where). ``delay_margin_s`` is the extra delay beyond the
+    config's own (``existing_delay_s``).
     """
     config = policy_config(env_config, policy)
-    model = BogieModel(bogie_params(config))
+    model = plant_bogie(config, conicity)
     per_speed = [loop_margins(linear_loop(policy, env_config, float(v), model=model)) for v in speeds_kmh]
     unstable = [r["speed_kmh"] for r in per_speed if not r["closed_loop_stable"]]
+    rows, _ = sensor_filters(config)
+    active = _active_channels(config)
 
-    def worst(key):
-        if unstable:
-            return None
-        values = [r[key] for r in per_speed if r[key] is not None]
-        return min(values) if values else None  # None everywhere: unbounded
+    def worst(key, pick=min):
+        return None if unstable else _worst(per_speed, key, pick)
 
     return {
         "speeds_kmh": [float(v) for v in speeds_kmh],
         "dt_s": config["dt"],
-        "model": "discrete at the control rate (exact ZOH + actuator lag + delay shift register)",
+        "conicity": float(model.params.lam),
+        "observation_type": config["observation"]["type"],
+        "delay_steps": dict(zip([CHANNELS[k] for k in active], _delay_steps(config, active))),
+        "sensor_filters_hz": {SENSOR_NAMES[r]: config["sensors"][SENSOR_NAMES[r]]["bandwidth_hz"] for r in rows} or None,
+        "model": ("discrete at the control rate: exact ZOH of bogie and actuator lag, command delay shift registers"
+                  + (", the sensors' first-order anti-alias filters" if rows else "")
+                  + "; no noise, bias, track irregularity or saturation; force-rate limit inactive (small signal)"),
         "gain_margin": worst("gain_margin"),
+        "gain_margin_lower": worst("gain_margin_lower", max),
         "delay_margin_s": worst("delay_margin_s"),
+        "all_loops_extra_delay_steps": worst("all_loops_extra_delay_steps"),
         "unstable_at_kmh": unstable,
+        "summary": summarise(per_speed, *SUMMARY_SPEEDS_KMH),
         "by_speed": per_speed,
     }
 
@@ -688,9 +814,17 @@ def _fmt(value: float | None, spec: str) -> str:
     return "inf" if value is None else format(value, spec)
 
 
+def _steps(value: int | None) -> str:
+    return f">{MAX_EXTRA_DELAY_STEPS}" if value is None else str(value)
+
+
 def format_table(table: dict[str, Any]) -> str:
-    """A plain-text table: per speed and loop, gain margin (lower-upper), phase, delay and disk margins."""
-    lines = [f"{'km/h':>6} {'loop':<14} {'GM':>16} {'PM deg':>8} {'DM ms':>8} {'disk':>6}"]
+    """A plain-text table: per speed and loop, gain margin (lower-upper), phase margin, delay
+    margin (ms beyond the existing delay, and whole extra steps by eigenvalues), disk margin,
+    crossover; then the worst case and the 300-450 km/h summary."""
+    lines = [f"conicity {table['conicity']:g}, delay steps {table['delay_steps']}, sensor filters "
+             f"{'none' if not table['sensor_filters_hz'] else sorted(set(table['sensor_filters_hz'].values()))} Hz",
+             f"{'km/h':>6} {'loop':<14} {'GM':>14} {'PM deg':>8} {'fc Hz':>6} {'DM ms':>8} {'steps':>5} {'disk':>6}"]  # fmt: skip
     for row in table["by_speed"]:
         if not row["closed_loop_stable"]:
             lines.append(f"{row['speed_kmh']:>6g} {'(unstable: growth ' + format(row['closed_loop_growth_rate_per_s'], '.2f') + ' 1/s)':<40}")
@@ -698,16 +832,31 @@ def format_table(table: dict[str, Any]) -> str:
         for name, m in row["loops"].items():
             gm = f"{m['gain_margin_lower']:.3g}-{_fmt(m['gain_margin'], '.3g')}"
             dm = None if m["delay_margin_s"] is None else m["delay_margin_s"] * 1e3
-            lines.append(f"{row['speed_kmh']:>6g} {name:<14} {gm:>16} {_fmt(m['phase_margin_deg'], '.1f'):>8} "
-                         f"{_fmt(dm, '.1f'):>8} {_fmt(m['disk_margin'], '.2f'):>6}")  # fmt: skip
+            lines.append(f"{row['speed_kmh']:>6g} {name:<14} {gm:>14} {_fmt(m['phase_margin_deg'], '.1f'):>8} "
+                         f"{_fmt(m['gain_crossover_hz'], '.2f'):>6} {_fmt(dm, '.1f'):>8} {_steps(m['delay_margin_steps']):>5} "
+                         f"{_fmt(m['disk_margin'], '.2f'):>6}")  # fmt: skip
         sim = row["simultaneous_disk_margin"] or {"disk_margin": math.nan}  # NaN: slycot missing
-        lines.append(f"{row['speed_kmh']:>6g} {'all (disk)':<14} {'':>16} {'':>8} {'':>8} {_fmt(sim['disk_margin'], '.2f'):>6}")
+        lines.append(f"{row['speed_kmh']:>6g} {'all loops':<14} {'':>14} {'':>8} {'':>6} {'':>8} "
+                     f"{_steps(row['all_loops_extra_delay_steps']):>5} {_fmt(sim['disk_margin'], '.2f'):>6}")  # fmt: skip
     dm = table["delay_margin_s"]
     if table["unstable_at_kmh"]:
         lines.append(f"worst case: none (the nominal loop is unstable at {table['unstable_at_kmh']} km/h)")
     else:
         lines.append(f"worst case: gain margin {_fmt(table['gain_margin'], '.3g')}, delay margin "
-                     f"{_fmt(None if dm is None else dm * 1e3, '.1f')} ms")  # fmt: skip
+                     f"{_fmt(None if dm is None else dm * 1e3, '.1f')} ms beyond the existing delay, "
+                     f"all loops {_steps(table['all_loops_extra_delay_steps'])} extra steps")  # fmt: skip
+    su = table["summary"]
+    lo, hi = su["speed_range_kmh"]
+    if not su["speeds_kmh"]:
+        lines.append(f"summary {lo:g}-{hi:g} km/h: no speed in range")
+    elif not su["closed_loop_stable"]:
+        lines.append(f"summary {lo:g}-{hi:g} km/h: closed loop unstable at {su['unstable_at_kmh']} km/h")
+    else:
+        dm = su["delay_margin_s"]
+        lines.append(f"summary {lo:g}-{hi:g} km/h: stable; gain margin {_fmt(su['gain_margin'], '.3g')} "
+                     f"(lower {_fmt(su['gain_margin_lower'], '.3g')}), delay margin "
+                     f"{_fmt(None if dm is None else dm * 1e3, '.1f')} ms, all loops "
+                     f"{_steps(su['all_loops_extra_delay_steps'])} extra steps")  # fmt: skip
     return "\n".join(lines)
 
 
@@ -726,25 +875,29 @@ def simulate_loop(policy, env_config: dict, speed_kmh: float, x0: np.ndarray, fo
     ``extra_delay_s`` (N,) or (N, n_act) delays them beyond the env's delay, rounded to
     ``dt / substeps``. The physics is the compiled RK4 kernel of :class:`BatchSimulator`, at
     ``dt / substeps`` (finer than the env's step, so it does not damp the fast modes); no
-    saturation. Returns ``t`` (steps,), ``x`` (steps, N, 20) at the control instants.
+    saturation or rate limit. With ``sensors.enabled`` the observation passes the sensors'
+    anti-alias filters as in the env (settled on the first sample; no noise or bias).
+    Returns ``t`` (steps,), ``x`` (steps, N, 20) at the control instants.
     """
     from bogie_env.simulator import BatchSimulator
 
     config = policy_config(env_config, policy)
     active = _active_channels(config)
     if model is None:
-        model = BogieModel(bogie_params(config))
+        model = plant_bogie(config)
     x0 = np.atleast_2d(np.asarray(x0, float))
     n, n_act = x0.shape[0], len(active)
     dt = config["dt"]
     speed = speed_kmh / KMH
     gains = np.ones((n, n_act)) if gains is None else np.broadcast_to(np.asarray(gains, float), (n, n_act))
-    d_env = _delay_steps(config, active)
+    d_env = np.array(_delay_steps(config, active), dtype=int)
+    filter_rows, filter_weight = sensor_filters(config)
+    filter_rows = list(filter_rows)
     extra = np.asarray(extra_delay_s, float)
     extra = extra.reshape(-1, 1) if extra.ndim == 1 else extra
     if np.any(~np.isfinite(extra)) or np.any(extra < 0):
         raise ValueError(f"simulate_loop: extra_delay_s = {extra_delay_s!r} must be finite and >= 0")
-    lag = np.broadcast_to(np.rint(extra * substeps / dt).astype(int), (n, n_act)) + d_env * substeps  # substeps
+    lag = np.broadcast_to(np.rint(extra * substeps / dt).astype(int), (n, n_act)) + d_env[None, :] * substeps  # substeps
     max_force = np.array([config["actuators"][CHANNELS[k]]["max_force"] for k in active])
     table = channel_table(config["actuators"])
     table[:, CH_DELAY_STEPS] = 0  # the delay is applied here, to a fraction of dt
@@ -760,9 +913,16 @@ def simulate_loop(policy, env_config: dict, speed_kmh: float, x0: np.ndarray, fo
     xs[0] = sim.x
     target = np.zeros((n, len(CHANNEL_NAMES)))
     rows = np.arange(n)[:, None]
+    filtered = None
     for step in range(n_steps):
-        y = observe(sim.x, sim.channel_output[:, active], speed, config, model)
-        y = np.clip(y, -T.OBS_BOUND, T.OBS_BOUND).astype(np.float32)
+        y = np.clip(observe(sim.x, sim.channel_output[:, active], speed, config, model), -T.OBS_BOUND, T.OBS_BOUND)
+        if filter_rows:
+            if filtered is None:
+                filtered = y[:, filter_rows].copy()  # settled on the first sample
+            else:
+                filtered += filter_weight * (y[:, filter_rows] - filtered)
+            y[:, filter_rows] = np.clip(filtered, -T.OBS_BOUND, T.OBS_BOUND)
+        y = y.astype(np.float32)
         history[step] = np.asarray(policy.act(y), dtype=float)
         for j in range(substeps):
             s = step * substeps + j - lag  # substep index the command was issued at
@@ -800,3 +960,83 @@ def envelope_growth_rate(t: np.ndarray, signal: np.ndarray, window_s: float = 0.
     if np.count_nonzero(keep) < 3:
         return math.nan
     return float(np.polyfit(centres[keep], np.log(peaks[keep]), 1)[0])
+
+
+def dominant_frequency_hz(t: np.ndarray, signal: np.ndarray, skip_s: float = 0.5) -> float:
+    """The oscillation frequency (Hz) from the mean spacing of a signal's upward zero crossings
+    after ``skip_s`` (linear interpolation between samples); NaN with fewer than three."""
+    start = int(round(skip_s / (t[1] - t[0])))
+    s, tt = signal[start:], t[start:]
+    up = np.nonzero((s[:-1] < 0) & (s[1:] >= 0))[0]
+    if up.size < 3:
+        return math.nan
+    crossings = tt[up] - s[up] * (tt[up + 1] - tt[up]) / (s[up + 1] - s[up])
+    return float((up.size - 1) / (crossings[-1] - crossings[0]))
+
+
+# =============================================================================================
+# The env itself as the oracle
+# =============================================================================================
+
+
+def quiet_env_config(env_config: dict, policy, speed_kmh: float, conicity: float | None = None,
+                     extra_delay_steps=0, initial_perturbation_m: float = 1e-7, n_sub: int | None = None) -> dict:  # fmt: skip
+    """The env config whose small-signal loop :func:`linear_loop` describes, for running the
+    env itself: the policy's observation type, sensor noise and bias zero (the anti-alias
+    filters stay), perfect track, no per-episode randomisation (the conicity pinned if given),
+    a fixed speed, a small random start offset (``initial_perturbation_m``); ``extra_delay_steps``
+    (scalar or per active channel) added to the channels' ``delay_steps``; ``n_sub`` fixes the
+    RK4 substeps (None: the config's criterion)."""
+    from bogie_env.envs.config import make_config
+
+    config = policy_config(env_config, policy)
+    active = _active_channels(config)
+    extra = np.broadcast_to(np.asarray(extra_delay_steps, dtype=int), (len(active),))
+    update: dict[str, Any] = {
+        "speed": {"start_kmh": float(speed_kmh), "end_kmh": float(speed_kmh), "accel": 0.0, "start_kmh_range": None,
+                  "end_kmh_range": None, "accel_range": None},  # fmt: skip
+        "track": {"level": None, "rms": 0.0},
+        "randomize": {} if conicity is None else {"conicity": [check_conicity(conicity)] * 2},
+        "initial_perturbation": float(initial_perturbation_m),
+        "large_perturbation_probability": 0.0,
+        "observation": {"noise": 0.0},
+        "actuators": {CHANNELS[k]: {"delay_steps": int(config["actuators"][CHANNELS[k]]["delay_steps"] + e)}
+                      for k, e in zip(active, extra)},  # fmt: skip
+    }
+    if config["sensors"]["enabled"]:
+        update["sensors"] = {name: {"noise_density": 0.0, "bias": 0.0} for name in SENSOR_NAMES}
+    if n_sub is not None:
+        update["integration"] = {"n_sub": int(n_sub)}
+    return make_config(merge_config(config, update))
+
+
+def simulate_env(policy, env_config: dict, speed_kmh: float, duration_s: float, conicity: float | None = None,
+                 extra_delay_steps=0, initial_perturbation_m: float = 1e-7, seed: int = 0,
+                 n_sub: int | None = None) -> dict[str, np.ndarray]:  # fmt: skip
+    """Run ``policy`` in the env's own task (``HuntingTask``, one row) under
+    :func:`quiet_env_config`: the nonlinear bogie, the env's integrator, delays, lags, rate
+    limits, saturation and sensor filters, at a fixed speed on perfect track. Returns ``t``
+    (steps + 1,), ``x`` (steps + 1, 20) states, ``obs`` (steps + 1, n_obs), ``actions`` (steps,
+    n_act), ``n_sub`` the RK4 substeps used."""
+    from bogie_env.envs.task import HuntingTask
+
+    config = quiet_env_config(env_config, policy, speed_kmh, conicity, extra_delay_steps, initial_perturbation_m, n_sub)
+    task = HuntingTask(1, config)
+    task.seed_rows(np.array([0]), [seed])
+    task.reset_rows(np.array([0]))
+    n_steps = int(round(duration_s / config["dt"]))
+    xs = np.empty((n_steps + 1, N_STATES))
+    obs = np.empty((n_steps + 1, task.observation_dim))
+    actions = np.empty((n_steps, task.action_dim))
+    xs[0], obs[0] = task.states[0], task.obs[0]
+    policy.reset(1)
+    for n in range(n_steps):
+        actions[n] = np.asarray(policy.act(task.obs.copy()), dtype=float)[0]
+        task.step(actions[n][None])
+        xs[n + 1], obs[n + 1] = task.states[0], task.obs[0]
+        if task.blowup[0]:
+            xs[n + 2:] = np.nan
+            obs[n + 2:] = np.nan
+            actions[n + 1:] = np.nan
+            break
+    return {"t": np.arange(n_steps + 1) * config["dt"], "x": xs, "obs": obs, "actions": actions, "n_sub": task.n_sub}

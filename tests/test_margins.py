@@ -267,3 +267,203 @@ def test_passive_loop_loses_stability_at_the_linear_critical_speed(env_config, m
 def test_cli_margins_bad_speeds_are_named(capsys, speeds):
     assert cli_main(["margins", "--policy", "passive", "--speeds", speeds]) == 2
     assert "--speeds" in capsys.readouterr().err
+
+
+# ---- Bogie/Hunting-v1: sensor filters, loop delay, conicity ------------------------------------
+
+
+@pytest.fixture(scope="module")
+def v1_config():
+    return make_config(variant="v1")
+
+
+@pytest.fixture(scope="module")
+def v1_lqg(v1_config):
+    return LQGController(v1_config, v_range_kmh=(400.0, 500.0))
+
+
+@pytest.fixture(scope="module")
+def v1_lqg_loop(v1_lqg, v1_config):
+    return M.linear_loop(v1_lqg, v1_config, SPEED_KMH)
+
+
+@pytest.fixture(scope="module")
+def v1_lqg_margins(v1_lqg_loop):
+    return M.loop_margins(v1_lqg_loop)
+
+
+def test_v1_plant_matches_the_env_observation_response(v1_config):
+    """The v1 linear plant (anti-alias filters, one step of delay, lags) against the env's own
+    observations (HuntingTask, noise and bias off, perfect track, RK4 at 0.25 ms) after a small
+    random start offset and small random actions."""
+    from bogie_env.envs.task import HuntingTask
+
+    passive = PassiveController(v1_config)
+    config = M.quiet_env_config(v1_config, passive, SPEED_KMH, initial_perturbation_m=1e-7, n_sub=40)
+    task = HuntingTask(1, config)
+    task.seed_rows(np.array([0]), [3])
+    task.reset_rows(np.array([0]))
+    plant = M.plant_model(config, SPEED_KMH, model=task.model)
+    assert plant.filter_rows and plant.delay_steps == (1, 1, 1, 1)
+    y_eq = M.observe(plant.x_eq, np.zeros(4), SPEED_KMH / 3.6, config, task.model)[0]
+    s = plant.settled_state(task.states[0] - plant.x_eq)
+    rng = np.random.default_rng(0)
+    worst = np.zeros(task.observation_dim)
+    size = np.full(task.observation_dim, 1e-12)
+    unfiltered = M.plant_model(make_config(config, sensors={"enabled": False}), SPEED_KMH, model=task.model)
+    s_unf = unfiltered.settled_state(task.states[0] - plant.x_eq)
+    unfiltered_error = 0.0
+    for step in range(8):
+        y_env = task.obs[0].astype(float) - y_eq
+        y_lin = plant.c @ s
+        worst = np.maximum(worst, np.abs(y_env - y_lin))
+        size = np.maximum(size, np.abs(y_lin))
+        unfiltered_error = max(unfiltered_error, float(np.max(np.abs(y_env - unfiltered.c @ s_unf) / (np.abs(y_lin) + 1e-9))))
+        u = 1e-4 * rng.standard_normal(4)
+        task.step(u[None])
+        s = plant.a @ s + plant.b @ u
+        s_unf = unfiltered.a @ s_unf + unfiltered.b @ u
+    assert np.all(worst <= 2e-3 * size + 1e-9), (worst / size)
+    assert unfiltered_error > 1e-2  # not vacuous: leaving the filters out is seen
+
+
+def test_v1_delay_margin_matches_closed_loop_eigenvalues(v1_config, v1_lqg, v1_lqg_loop, v1_lqg_margins):
+    """delay_margin_s (python-control: phase margin / crossover) against whole extra steps of
+    delay put into the env config (delay_steps) and the closed-loop eigenvalues."""
+    loop, margins = v1_lqg_loop, v1_lqg_margins
+    assert margins["closed_loop_stable"] and margins["existing_delay_s"] == pytest.approx(0.01)
+    config = M.policy_config(v1_config, v1_lqg)
+    dt = config["dt"]
+
+    def stable_with(delays):
+        acts = {name: {"delay_steps": int(d)} for name, d in zip(loop.plant.channel_names, delays)}
+        plant = M.plant_model(make_config(config, actuators=acts), SPEED_KMH, model=loop.plant.model)
+        return np.max(np.abs(M.LinearLoop(plant, loop.ctrl, SPEED_KMH, loop.u_eq).eigenvalues())) < 1.0
+
+    checked = 0
+    for j, name in enumerate(loop.plant.channel_names):
+        m = margins["loops"][name]
+        if m["delay_margin_s"] is None:
+            assert m["delay_margin_steps"] is None
+            continue
+        k = int(math.floor(m["delay_margin_s"] / dt))
+        assert m["delay_margin_steps"] == k, name
+        delays = np.ones(4, dtype=int)
+        delays[j] = 1 + k
+        assert stable_with(delays), name
+        delays[j] = 2 + k
+        assert not stable_with(delays), name
+        checked += 1
+    assert checked >= 2
+    k_all = margins["all_loops_extra_delay_steps"]
+    assert k_all is not None and k_all <= min(m["delay_margin_steps"] for m in margins["loops"].values() if m["delay_margin_steps"] is not None)
+    assert stable_with(np.full(4, 1 + k_all)) and not stable_with(np.full(4, 2 + k_all))
+
+
+def test_v1_passive_growth_and_frequency_match_the_env(v1_config):
+    """The v1 loop's leading eigenvalue against the env's own simulation (passive, 450 km/h)."""
+    passive = PassiveController(v1_config)
+    loop = M.linear_loop(passive, v1_config, SPEED_KMH)
+    eig = loop.eigenvalues()
+    lead = eig[np.argmax(np.abs(eig))]
+    out = M.simulate_env(passive, v1_config, SPEED_KMH, 4.0)
+    dev = M.deviation(out["x"][:, None, :], loop.plant.x_eq)[:, 0]
+    assert M.envelope_growth_rate(out["t"], dev, skip_s=1.0) == pytest.approx(loop.growth_rate(), rel=0.05)
+    y1 = out["x"][:, 0] - loop.plant.x_eq[0]
+    assert M.dominant_frequency_hz(out["t"], y1, skip_s=1.0) == pytest.approx(abs(np.angle(lead)) / loop.dt / (2 * np.pi), rel=0.01)
+
+
+def test_v1_extra_delay_verdicts_hold_in_the_env(v1_config, v1_lqg, v1_lqg_loop, v1_lqg_margins):
+    """The env itself (nonlinear bogie, its integrator, rate limits, filters) with the LQG at
+    450 km/h: the all-loop extra delay the margins tolerate decays, one step more grows, at
+    the growth rates of the linear loop (within 10 %)."""
+    k = v1_lqg_margins["all_loops_extra_delay_steps"]
+    for extra, sign in ((k, -1), (k + 1, 1)):
+        predicted = v1_lqg_loop.with_extra_delay(extra).growth_rate()
+        assert np.sign(predicted) == sign and abs(predicted) > 0.5  # a discriminating speed
+        out = M.simulate_env(v1_lqg, v1_config, SPEED_KMH, 5.0, extra_delay_steps=extra)
+        dev = M.deviation(out["x"][:, None, :], v1_lqg_loop.plant.x_eq)[:, 0]
+        measured = M.envelope_growth_rate(out["t"], dev, skip_s=1.0)
+        assert measured == pytest.approx(predicted, rel=0.1), extra
+
+
+def test_v1_conicity_moves_the_plant(v1_config):
+    """--conicity replaces lam: the passive v1 loop at 0.1 is unstable at 300 km/h (linear critical
+    speed 141 km/h), at the nominal 0.025 stable."""
+    passive = PassiveController(v1_config)
+    assert M.margins_table(passive, v1_config, (300.0,))["summary"]["closed_loop_stable"]
+    table = M.margins_table(passive, v1_config, (300.0,), conicity=0.1)
+    assert table["conicity"] == 0.1 and table["unstable_at_kmh"] == [300.0]
+    from bogie_env.params import ConfigError
+
+    with pytest.raises(ConfigError, match="conicity"):
+        M.margins_table(passive, v1_config, (300.0,), conicity=2.0)
+
+
+class _HookedLQG(LQGController):
+    """An LQG that describes itself through the controller_model hook, at half its gain."""
+
+    def act(self, obs):
+        return 0.5 * super().act(obs)
+
+    def controller_model(self, n_obs, speed_kmh, y0):
+        full = M.lqg_model(self, n_obs, speed_kmh)
+        return M.ControllerModel(full.a, full.b, 0.5 * full.c, 0.5 * full.d, "hooked LQG at half gain")
+
+
+def test_controller_model_hook_is_used(v1_config, v1_lqg_loop):
+    policy = _HookedLQG(v1_config, v_range_kmh=(400.0, 500.0))
+    loop = M.linear_loop(policy, v1_config, SPEED_KMH)
+    assert loop.ctrl.method == "hooked LQG at half gain"
+    y0 = M.observe(loop.plant.x_eq, loop.plant.force_eq, SPEED_KMH / 3.6, M.policy_config(v1_config, policy), loop.plant.model)[0]
+    assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq) < 1e-3
+    # the hooked loop is the LQG loop with every command scaled by 0.5
+    ours = np.sort_complex(loop.eigenvalues())
+    scaled = np.sort_complex(v1_lqg_loop.eigenvalues(gains=np.full(4, 0.5)))
+    np.testing.assert_allclose(ours, scaled, atol=1e-9)
+
+
+def test_residual_policy_model(v1_config, v1_lqg):
+    """A residual policy clip(LQG + scale * PPO): the baseline's model plus scale x the PPO's
+    autograd Jacobian (linear_models.residual_controller_model), against its act, at its own
+    closed-loop equilibrium (the PPO part commands a bias)."""
+    from bogie_agents.linear_models import residual_controller_model, sb3_jacobian_autograd
+    from bogie_agents.policies import load_policy
+
+    ppo = load_policy("pretrained", v1_config)
+
+    class Residual(LQGController):
+        scale = 0.2
+
+        def act(self, obs):
+            return np.clip(super().act(obs) + self.scale * ppo.act(obs), -1, 1).astype(np.float32)
+
+        def controller_model(self, n_obs, speed_kmh, y0):
+            return residual_controller_model(M.lqg_model(self, n_obs, speed_kmh), sb3_jacobian_autograd(ppo, y0), self.scale)
+
+    policy = Residual(v1_config, v_range_kmh=(400.0, 500.0))
+    loop = M.linear_loop(policy, v1_config, SPEED_KMH)
+    assert np.max(np.abs(loop.u_eq)) > 1e-3  # the operating point carries the bias
+    config = M.policy_config(v1_config, policy)
+    y0 = M.observe(loop.plant.x_eq, loop.plant.force_eq, SPEED_KMH / 3.6, config, loop.plant.model)[0]
+    assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2  # float32 act
+    assert M.loop_margins(loop)["closed_loop_stable"]
+
+
+def test_cli_margins_v1_json(capsys):
+    code = cli_main(["margins", "--env", "Bogie/Hunting-v1", "--policy", "passive", "--speeds", "300,450",
+                     "--conicity", "0.05", "--json"])  # fmt: skip
+    assert code == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["env_id"] == "Bogie/Hunting-v1" and payload["env_version"] == "v1"
+    margins = payload["policies"][0]["margins"]
+    assert margins["conicity"] == 0.05 and margins["delay_steps"]["frame_yaw"] == 1
+    assert margins["sensor_filters_hz"]["frame_yaw_rate"] == 40.0
+    assert margins["unstable_at_kmh"] == [300.0, 450.0]  # passive at 0.05: critical speed 237 km/h
+    assert set(margins["summary"]) >= {"gain_margin", "delay_margin_s", "closed_loop_stable", "all_loops_extra_delay_steps"}
+    assert margins["summary"]["closed_loop_stable"] is False
+
+
+def test_cli_margins_bad_conicity_is_named(capsys):
+    assert cli_main(["margins", "--policy", "passive", "--conicity", "-1"]) == 2
+    assert "--conicity" in capsys.readouterr().err

@@ -1,0 +1,186 @@
+"""Linear models of controllers: what a policy does to a small change of its observation.
+
+Shared by :mod:`bogie_agents.controllers` (a controller may describe itself) and
+:mod:`bogie_agents.margins` (which puts the model in the loop), with no import of either, so
+neither imports the other through it.
+
+:class:`ControllerModel` is a discrete state space at the env's step ``dt``:
+``c+ = a c + b dy``, ``du = c_ c + d dy``, from the deviation ``dy`` of the (scaled) observation
+from the operating observation ``y0`` to the deviation ``du`` of the normalised action (the env's
+action box [-1, 1]) from the action at rest.
+
+**The hook.** A policy object may provide
+
+    controller_model(n_obs: int, speed_kmh: float, y0: np.ndarray) -> ControllerModel
+
+and :func:`bogie_agents.margins.controller_model` uses it instead of its own rules. ``y0`` is
+the observation the env gives at the operating point (the closed loop's equilibrium at
+``speed_kmh`` on perfect track, sensor noise and bias off, the anti-alias filters settled);
+``n_obs == y0.size``.
+
+**SB3 policies.** :func:`sb3_controller_model` (policy, y0) is the API for an SB3 policy (or any
+object with an SB3 ``model`` and, optionally, VecNormalize statistics ``obs_mean``,
+``obs_var``, ``clip_obs``, ``epsilon``): a static model whose ``d`` is the Jacobian of the
+deterministic action by torch autograd (:func:`sb3_jacobian_autograd`). A residual policy,
+``action = clip(baseline(obs) + scale * NN(obs), -1, 1)``, is
+:func:`residual_controller_model` (baseline's model, ``sb3_jacobian_autograd(nn, y0)``,
+scale, action at ``y0``): the baseline's model with ``scale * J`` added to its
+feedthrough, and the rows of channels clipped at ``y0`` zeroed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class ControllerModel:
+    """``c+ = a c + b y``, ``u = c_ c + d y`` (y: observation deviation, u: normalised command deviation).
+
+    ``a`` (n_c, n_c), ``b`` (n_c, n_obs), ``c`` (n_act, n_c), ``d`` (n_act, n_obs); ``method``
+    says how the model was obtained (it is printed beside the margins).
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    method: str  # how it was obtained
+
+    @property
+    def n_states(self) -> int:
+        return self.a.shape[0]
+
+    def dc_gain(self) -> np.ndarray:
+        """(n_act, n_obs) the steady-state change of the command per steady change of the
+        observation: ``d + c (I - a)^-1 b`` (an integrating controller has none: LinAlgError)."""
+        if not self.n_states:
+            return self.d
+        return self.d + self.c @ np.linalg.solve(np.eye(self.n_states) - self.a, self.b)
+
+    def check_shapes(self, n_obs: int, n_act: int) -> None:
+        """Raise ValueError naming the matrix whose shape does not fit ``n_obs`` and ``n_act``."""
+        n_c = self.a.shape[0] if self.a.ndim == 2 else -1
+        expected = {"a": (n_c, n_c), "b": (n_c, n_obs), "c": (n_act, n_c), "d": (n_act, n_obs)}
+        for name, shape in expected.items():
+            value = np.asarray(getattr(self, name))
+            if value.shape != shape:
+                raise ValueError(f"ControllerModel ({self.method}): {name} has shape {value.shape}; expected {shape} "
+                                 f"(n_states {n_c}, n_obs {n_obs}, n_act {n_act})")  # fmt: skip
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"ControllerModel ({self.method}): {name} contains NaN or inf")
+
+
+def static_model(d: np.ndarray, method: str) -> ControllerModel:
+    """A memoryless controller ``u = d y``."""
+    d = np.asarray(d, dtype=float)
+    m, p = d.shape
+    return ControllerModel(np.zeros((0, 0)), np.zeros((0, p)), np.zeros((m, 0)), d, method)
+
+
+def residual_controller_model(baseline: ControllerModel, nn_jacobian: np.ndarray, scale: float | np.ndarray,
+                              action_at_rest: np.ndarray | None = None) -> ControllerModel:  # fmt: skip
+    """The linear model of ``action = clip(baseline(y) + scale * NN(y), -1, 1)`` at ``y0``.
+
+    ``baseline``: the baseline's model at ``y0``; ``nn_jacobian`` (n_act, n_obs): d NN / d y at
+    ``y0`` (e.g. :func:`sb3_jacobian_autograd`); ``scale``: scalar or per channel;
+    ``action_at_rest``: the clipped total action at ``y0`` (a channel at the clip, ``|u| >= 1``,
+    has zero small-signal gain; None: nothing clipped).
+    """
+    scale = np.broadcast_to(np.asarray(scale, dtype=float), (baseline.d.shape[0],))
+    d = baseline.d + scale[:, None] * np.asarray(nn_jacobian, dtype=float)
+    c = baseline.c.copy()
+    if action_at_rest is not None:
+        clipped = np.abs(np.asarray(action_at_rest, dtype=float)) >= 1.0
+        d[clipped] = 0.0
+        c[clipped] = 0.0
+    return ControllerModel(baseline.a, baseline.b, c, d, f"residual: {baseline.method} + scale x NN Jacobian")
+
+
+# ---- SB3 policies ------------------------------------------------------------------------------
+def _normalisation(policy):
+    """VecNormalize statistics of the policy (mean, var, epsilon, clip) or the identity."""
+    mean = getattr(policy, "obs_mean", None)
+    if mean is None:
+        return None, None, 0.0, math.inf
+    return mean, policy.obs_var, policy.epsilon, policy.clip_obs
+
+
+def sb3_action_function(policy):
+    """The SB3 policy's deterministic action as a float64 torch function of the observation:
+    VecNormalize scaling and clipping, the network (a float64 copy for PPO/A2C), the action-box
+    clip. ``policy.model`` is the SB3 algorithm; ``obs_mean``/``obs_var``/``epsilon``/``clip_obs``
+    (optional attributes) the observation statistics."""
+    import copy
+
+    import torch
+
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    net = policy.model.policy
+    # PPO/A2C: the actor's layers in float64 (SB3's own _predict casts observations to float32)
+    double = isinstance(net, ActorCriticPolicy) and not net.squash_output
+    dtype = torch.float64 if double else torch.float32
+    if double:
+        net = copy.deepcopy(net).double()
+    mean_np, var_np, eps, clip = _normalisation(policy)
+    mean = torch.as_tensor(0.0 if mean_np is None else mean_np, dtype=dtype)
+    var = torch.as_tensor(1.0 if var_np is None else var_np, dtype=dtype)
+
+    def deterministic(z: torch.Tensor) -> torch.Tensor:
+        if double:
+            return net.action_net(net.mlp_extractor.forward_actor(net.pi_features_extractor(z)))
+        return net._predict(z, deterministic=True)
+
+    def action(y: torch.Tensor) -> torch.Tensor:
+        y = y.to(dtype)
+        z = torch.clamp((y - mean) / torch.sqrt(var + eps), -clip, clip)
+        return torch.clamp(deterministic(z[None])[0], -1.0, 1.0).double()
+
+    return action
+
+
+def sb3_action(policy, y: np.ndarray) -> np.ndarray:
+    """The SB3 policy's action at one observation, in float64 (``act`` rounds to float32)."""
+    import torch
+
+    with torch.no_grad():
+        return sb3_action_function(policy)(torch.as_tensor(np.asarray(y, dtype=np.float64))).numpy()
+
+
+def sb3_jacobian_autograd(policy, y0: np.ndarray) -> np.ndarray:
+    """(n_act, n_obs) d(action)/d(observation) of an SB3 policy at ``y0``.
+
+    Through the VecNormalize scaling and clipping (attributes ``obs_mean``, ``obs_var``,
+    ``epsilon``, ``clip_obs`` of ``policy``, if present) and the action-box clip, by torch
+    autograd on the deterministic action (float64 for PPO/A2C). ``policy.model`` is the SB3
+    algorithm (PPO, SAC, TD3, ...). ``y0`` is the raw (env-scaled, un-normalised) observation.
+    For a residual policy, call this on the network part and combine with
+    :func:`residual_controller_model`.
+    """
+    import torch
+
+    jac = torch.autograd.functional.jacobian(sb3_action_function(policy), torch.as_tensor(np.asarray(y0, dtype=np.float64)))
+    return jac.detach().numpy()
+
+
+def sb3_controller_model(policy, y0: np.ndarray) -> ControllerModel:
+    """The linear model of a (stateless) SB3 policy at the raw observation ``y0``: static,
+    ``d`` = :func:`sb3_jacobian_autograd` (policy, y0)."""
+    return static_model(sb3_jacobian_autograd(policy, y0), "SB3 policy, torch autograd through VecNormalize")
+
+
+def finite_difference_jacobian(policy, y0: np.ndarray, step: float = 1e-3) -> np.ndarray:
+    """Central differences of ``policy.act`` at ``y0`` (a stateless policy); ``step`` in the
+    observation's scaled units (float32 policies need about 1e-3)."""
+    y0 = np.asarray(y0, dtype=np.float64)
+    n = y0.size
+    probes = np.repeat(y0[None], 2 * n, axis=0)
+    probes[np.arange(n), np.arange(n)] += step
+    probes[n + np.arange(n), np.arange(n)] -= step
+    policy.reset(2 * n)
+    out = np.asarray(policy.act(probes.astype(np.float32)), dtype=np.float64)
+    return ((out[:n] - out[n:]) / (2 * step)).T
