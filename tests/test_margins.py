@@ -467,3 +467,10 @@ def test_cli_margins_v1_json(capsys):
 def test_cli_margins_bad_conicity_is_named(capsys):
     assert cli_main(["margins", "--policy", "passive", "--conicity", "-1"]) == 2
     assert "--conicity" in capsys.readouterr().err
+
+
+def test_v1_lqg_margins_hold_in_nonlinear_simulation(v1_config, v1_lqg, v1_lqg_loop, v1_lqg_margins):
+    """v1 (one step of delay, sensor filters in simulate_loop as in the env): the worst loop at
+    0.9 / 1.1 x its gain margin and 0.9 / 1.1 x its delay margin (to 1 ms) decays / grows."""
+    model = v1_lqg_loop.plant.model
+    _assert_verdicts(_verdicts(v1_lqg, v1_config, model, v1_lqg_loop, v1_lqg_margins))
