@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 ## main job: the passive bogie's linear critical speed, then the shipped PPO controller against it
 demo: $(STAMP)
 	$(BIN)/bogie critical-speed
-	$(BIN)/bogie evaluate --policy passive --policy pretrained --parts critical
+	$(BIN)/bogie evaluate --env Bogie/Hunting-v0 --policy passive --policy pretrained --parts critical
 
 ## quick test suite (slow tests skipped)
 test: $(STAMP)

@@ -97,29 +97,76 @@ def _env_variant(env_id: str) -> str | None:
     return IDS[env_id]
 
 
-@command("evaluate", "the evaluation protocol: closed-loop critical speed, ramp onset, effort, robustness")
+@command("evaluate", "the evaluation protocol of the env's version: v1 (for -v0 ids) or v2 (for -v1 ids)")
 @json_option
 @argument("--out", default=None, help="write the JSON result here as well (atomically)")
-@argument("--parts", default="critical,ramp,effort,robustness",
-          help="which parts of the protocol to run; add margins for the stability margins (docs/margins.md)")
+@argument("--parts", default=None,
+          help="which parts of the protocol to run. Protocol v2 (-v1 ids): critical, cost (default: both), margins, "
+               "and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
-@argument("--env", default="Bogie/Hunting-v0",
-          help="env id whose task to evaluate on (its variant; --env-config merges into it), e.g. Bogie/Hunting-v1")
+@argument("--env", default="Bogie/Hunting-v1",
+          help="env id whose task to evaluate on (its variant; --env-config merges into it); its version picks the "
+               "protocol: -v1 ids protocol v2 (docs/results.md), -v0 ids protocol v1")
 @policy_options
 @backend_options
 @bogie_options
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from .evaluate import ProtocolSettings, evaluate_policy
-    from .policies import load_policy
-
     check_backend_args(args)
     _check_workers(args)
     env_config = env_config_from_args(args, _env_variant(args.env))
-    requested = tuple(p.strip() for p in args.parts.split(",") if p.strip())
-    allowed = {"critical", "ramp", "effort", "robustness", "margins"}
+    env_version = args.env.rsplit("-", 1)[-1]
+    if env_version == "v0":
+        results, protocol_version = _evaluate_v1(args, env_config), 1
+    else:
+        results, protocol_version = _evaluate_v2(args, env_config), 2
+    payload = {"env_id": args.env, "env_version": env_version, "protocol_version": protocol_version, "policies": results}
+    if args.out:
+        write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
+    if args.json:
+        print_json(payload)
+    elif protocol_version == 1:
+        _print_v1(results)
+    else:
+        from .results import v2_summary
+
+        for r in results:
+            print(v2_summary(r))
+    return 0
+
+
+def _requested_parts(args: argparse.Namespace, allowed: set[str], default: str) -> tuple[str, ...]:
+    text = default if args.parts is None else args.parts
+    requested = tuple(p.strip() for p in text.split(",") if p.strip())
     if not requested or set(requested) - allowed:
-        raise ConfigError(f"--parts {args.parts!r}: allowed parts are {', '.join(sorted(allowed))}")
+        raise ConfigError(f"--parts {text!r}: allowed parts are {', '.join(sorted(allowed))}")
+    return requested
+
+
+def _evaluate_v2(args: argparse.Namespace, env_config: dict) -> list[dict]:
+    """Protocol v2 (agents/stability_protocol.py) for every --policy."""
+    from .policies import load_policy
+    from .stability_protocol import Settings, available_parts, evaluate_policy_v2
+
+    parts = _requested_parts(args, set(available_parts()), "critical,cost")
+    for spec in args.policy:
+        load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any run
+    settings = Settings(seed=args.seed, progress=True)
+    if args.backend == "ray":  # one task per controller and part (docs/distributed.md)
+        from .evaluation_tasks import evaluate_many_v2
+
+        store = Path(f"{args.out}.chunks") if args.out else None
+        return evaluate_many_v2(args.policy, env_config, settings, parts, args.address, args.workers, store_dir=store,
+                                progress=True, trusted=args.trust_policy)  # fmt: skip
+    return [evaluate_policy_v2(spec, env_config, settings, parts, trusted=args.trust_policy) for spec in args.policy]
+
+
+def _evaluate_v1(args: argparse.Namespace, env_config: dict) -> list[dict]:
+    """Protocol v1 (agents/evaluate.py), unchanged, for the -v0 ids."""
+    from .evaluate import ProtocolSettings, evaluate_policy
+    from .policies import load_policy
+
+    requested = _requested_parts(args, {"critical", "ramp", "effort", "robustness", "margins"}, "critical,ramp,effort,robustness")
     parts = tuple(p for p in requested if p != "margins")  # margins: bogie margins' table, beside the protocol
     settings = ProtocolSettings(seed=args.seed)
     if not parts:
@@ -141,29 +188,26 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             from .margins import margins_table
 
             result["margins"] = margins_table(load_policy(spec, env_config, args.trust_policy), env_config)
-    payload = {"env_id": args.env, "env_version": args.env.rsplit("-", 1)[-1], "policies": results}
-    if args.out:
-        write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
-    if args.json:
-        print_json(payload)
-    else:
-        for r in results:
-            line = f"{r['policy']:>12s}:"
-            if "closed_loop_critical_speed_kmh" in r:
-                from .results import speed_text
+    return results
 
-                line += (f" closed-loop critical speed {speed_text(r)} km/h "
-                         f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']}; "
-                         f"search {r['protocol']['search_kmh'][0]:g}-{r['protocol']['search_kmh'][1]:g} km/h)")  # fmt: skip
-            if "ramp" in r:
-                line += f"; ramp reached {r['ramp']['mean_reached_kmh']} km/h (hunted {r['ramp']['hunted']}/{len(r['ramp']['seeds'])})"
-            if "margins" in r:
-                m = r["margins"]
-                line += (f"; margins over {m['speeds_kmh'][0]:g}-{m['speeds_kmh'][-1]:g} km/h: "
-                         + (f"unstable at {m['unstable_at_kmh']} km/h" if m["unstable_at_kmh"] else
-                            f"gain {m['gain_margin']}, delay {m['delay_margin_s']} s"))  # fmt: skip
-            print(line)
-    return 0
+
+def _print_v1(results: list[dict]) -> None:
+    for r in results:
+        line = f"{r['policy']:>12s}:"
+        if "closed_loop_critical_speed_kmh" in r:
+            from .results import speed_text
+
+            line += (f" closed-loop critical speed {speed_text(r)} km/h "
+                     f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']}; "
+                     f"search {r['protocol']['search_kmh'][0]:g}-{r['protocol']['search_kmh'][1]:g} km/h)")  # fmt: skip
+        if "ramp" in r:
+            line += f"; ramp reached {r['ramp']['mean_reached_kmh']} km/h (hunted {r['ramp']['hunted']}/{len(r['ramp']['seeds'])})"
+        if "margins" in r:
+            m = r["margins"]
+            line += (f"; margins over {m['speeds_kmh'][0]:g}-{m['speeds_kmh'][-1]:g} km/h: "
+                     + (f"unstable at {m['unstable_at_kmh']} km/h" if m["unstable_at_kmh"] else
+                        f"gain {m['gain_margin']}, delay {m['delay_margin_s']} s"))  # fmt: skip
+        print(line)
 
 
 @command("margins", "stability margins of a controller's loop (gain, phase, delay, disk) per speed and actuator")
@@ -223,21 +267,29 @@ def cmd_margins(args: argparse.Namespace) -> int:
     return 0
 
 
-@command("results", "evaluate several controllers; write results.json, table.md and ramp plots")
+@command("results", "evaluate several controllers; write results.json and table.md (v1 env: protocol v2; v0: plots too)")
 @argument("--resume", action="store_true", help="keep controllers already in OUT/results.json")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--env-config", default=None)
+@argument("--env", default="Bogie/Hunting-v1",
+          help="env id (its version picks the protocol: -v1 ids protocol v2 with critical, cost and margins; "
+               "-v0 ids protocol v1 with the ramp plots)")
 @argument("--out", required=True, help="output folder, e.g. docs/results")
 @policy_options
 @backend_options
 @bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
-    from .results import run
+    from .results import run, run_v2
 
     check_backend_args(args)
     _check_workers(args)
-    payload = run(args.policy, env_config_from_args(args), Path(args.out), args.resume, args.seed,
-                  trusted=args.trust_policy, backend=args.backend, address=args.address, workers=args.workers)  # fmt: skip
+    env_config = env_config_from_args(args, _env_variant(args.env))
+    if args.env.rsplit("-", 1)[-1] == "v0":
+        payload = run(args.policy, env_config, Path(args.out), args.resume, args.seed, trusted=args.trust_policy,
+                      backend=args.backend, address=args.address, workers=args.workers)  # fmt: skip
+    else:
+        payload = run_v2(args.policy, env_config, Path(args.out), args.resume, args.seed, trusted=args.trust_policy,
+                         backend=args.backend, address=args.address, workers=args.workers)  # fmt: skip
     print((Path(args.out) / "table.md").read_text())
     return 0 if payload else 1
 

@@ -105,3 +105,38 @@ def evaluate_many(
     for unit, (result,) in zip(todo, done):
         by_spec[unit[0]].append(result)
     return [merge(by_spec[spec]) for spec in specs]
+
+
+# ---- protocol v2 (the -v1 ids) ------------------------------------------------------------------
+def run_units_v2(shared: tuple, chunk: list) -> list[dict]:
+    """Protocol v2's unit: ``[spec, part]`` evaluated with :func:`stability_protocol.evaluate_policy_v2`.
+    ``shared``: ``(env_config, settings, trusted)``."""
+    from .stability_protocol import evaluate_policy_v2
+
+    env_config, settings, trusted = shared
+    unit_settings = copy.deepcopy(settings)
+    unit_settings.progress = False  # a worker's stderr is not the user's terminal
+    return [evaluate_policy_v2(spec, env_config, unit_settings, (part,), trusted=trusted) for spec, part in chunk]
+
+
+def evaluate_many_v2(specs: list[str], env_config: dict, settings, parts: tuple[str, ...], address: str | None = None,
+                     workers: int | None = None, store_dir: str | os.PathLike | None = None, progress: bool = True,
+                     trusted: bool = False) -> list[dict]:  # fmt: skip
+    """Protocol v2 for every controller as Ray tasks, one per (controller, part); results in
+    ``specs`` order, each equal to ``evaluate_policy_v2`` with all ``parts`` (parts are independent)."""
+    from . import stability_protocol
+
+    todo = [[spec, part] for spec in specs for part in parts]
+    import bogie_env
+
+    key = {"env_config": env_config, "settings": dataclasses.asdict(settings), "parts": list(parts),
+           "controllers": {spec: _fingerprint(spec) for spec in specs},
+           "code": source_digest(bogie_env, controllers, policies, stability_protocol, sys.modules[__name__])}  # fmt: skip
+    store = ChunkStore(store_dir, key) if store_dir is not None else None
+    done = map_chunks(run_units_v2, [[unit] for unit in todo], shared=(env_config, settings, trusted), backend="ray",
+                      address=address, workers=workers, store=store, progress=progress, desc="evaluation tasks",
+                      weight=lambda chunk: 1, unit="task")  # fmt: skip
+    out: dict[str, dict] = {spec: {} for spec in specs}
+    for (spec, _), (result,) in zip(todo, done):
+        out[spec].update(result)
+    return [out[spec] for spec in specs]

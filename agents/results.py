@@ -202,3 +202,126 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
     passive = next((r for r in results if r["policy"] == "passive"), None)
     write_text_atomic(out / "table.md", table(results, passive.get("closed_loop_critical_speed_kmh") if passive else None))
     return {"policies": results}
+
+
+# ---- protocol v2 (the -v1 ids) ------------------------------------------------------------------
+def v2_speed(entry: dict | None) -> str:
+    """A v2 column's critical speed with its bound and the seeds' spread: "≥ 600", "≤ 40", "352.1 (352-371)"."""
+    if not entry:
+        return "-"
+    value = entry["kmh"]
+    if entry["bound"].startswith("at least"):
+        return f"≥ {value:g}"
+    if entry["bound"].startswith("at most"):
+        return f"≤ {value:g}"
+    spread = entry.get("spread_kmh", {})
+    return f"{value:.0f} ({spread.get('median', value):.0f}-{spread.get('max', value):.0f})" if spread else f"{value:.0f}"
+
+
+def _at_ceiling(entry: dict | None) -> bool:
+    return bool(entry) and entry["bound"].startswith("at least")
+
+
+def v2_columns(result: dict) -> dict[str, dict | None]:
+    """The critical-speed columns of one controller's v2 result, in the table's order."""
+    cols: dict[str, dict | None] = {"nominal": result.get("nominal"), "worst case": result.get("worst_case")}
+    for lam, entry in result.get("by_conicity", {}).items():
+        if entry != result.get("nominal"):  # the nominal conicity is the nominal column
+            cols[f"λ {lam}"] = entry
+    for name, entry in result.get("degraded", {}).items():
+        cols[name] = entry
+    failed = result.get("actuator_failed", {})
+    if failed:
+        worst = min(failed, key=lambda k: failed[k]["kmh"])
+        cols["one actuator failed (worst)"] = {**failed[worst], "channel": worst}
+    for key, entry in result.items():
+        if key.startswith("delay_") and isinstance(entry, dict) and "kmh" in entry:
+            cols[f"{key[6:]} delay"] = entry
+    return cols
+
+
+def v2_table(results: list[dict]) -> str:
+    """Protocol v2's table: closed-loop critical speeds per column (min over seeds, with the
+    median-max of the seeds), margins and cost. A column where every controller sits at the
+    search ceiling separates nothing and is left out (named below the table)."""
+    per = [v2_columns(r) for r in results]
+    names = list(dict.fromkeys(name for cols in per for name in cols))
+    dropped = [n for n in names if all(_at_ceiling(cols.get(n)) for cols in per)]
+    names = [n for n in names if n not in dropped]
+    search = next((r["search"] for r in results if "search" in r), None)
+    head = ["controller"] + names + ["gain margin", "delay margin (ms)", "rms force 300 km/h (kN, kN m)", "frame accel rms (m/s²)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r, cols in zip(results, per):
+        m = r.get("margins") or {}
+        cost = (r.get("cost") or {})
+        first_cost = next(iter(cost.values()), None)
+        force = " / ".join(f"{v / 1e3:.2f}" for v in first_cost["rms_force"].values()) if first_cost and first_cost["rms_force"] else "-"
+        accel = f"{first_cost['frame_accel_rms_m_per_s2']:.3f}" if first_cost else "-"
+        delay = m.get("delay_margin_s")
+        cells = [r["policy"]] + [v2_speed(cols.get(n)) for n in names]
+        cells += [_fmt(m.get("gain_margin")), _fmt(delay * 1e3) if isinstance(delay, (int, float)) else "-", force, accel]
+        lines.append("| " + " | ".join(cells) + " |")
+    notes = ["", "Closed-loop critical speed in km/h: the highest speed all seeds pass, then (median-max) over the seeds."]
+    if search:
+        notes.append(f"Search {search['floor_kmh']:g}-{search['ceiling_kmh']:g} km/h ('≥' at the ceiling, '≤' at the floor), "
+                     f"{search['seeds']} seeds, bisection to {search['tol_kmh']:g} km/h (docs/results.md, protocol v2).")  # fmt: skip
+    if dropped:
+        notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
+    return "\n".join(lines + notes) + "\n"
+
+
+def v2_summary(result: dict) -> str:
+    """One line per controller for ``bogie evaluate`` without ``--json``."""
+    line = f"{result['policy']:>12s}:"
+    if "nominal" in result:
+        s = result["search"]
+        line += (f" closed-loop critical speed {v2_speed(result['nominal'])} km/h (search {s['floor_kmh']:g}-"
+                 f"{s['ceiling_kmh']:g} km/h, {s['seeds']} seeds); by conicity "
+                 + ", ".join(f"{lam}: {v2_speed(e)}" for lam, e in result.get("by_conicity", {}).items()))  # fmt: skip
+        if "worst_case" in result:
+            line += f"; worst case {v2_speed(result['worst_case'])}"
+    if "margins" in result:
+        m = result["margins"]
+        line += f"; gain margin {m.get('gain_margin')}, delay margin {m.get('delay_margin_s')} s"
+    return line
+
+
+def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
+           parts: tuple[str, ...] = ("critical", "cost", "margins"), trusted: bool = False, backend: str = "local",
+           address: str | None = None, workers: int | None = None, settings=None) -> dict:  # fmt: skip
+    """Protocol v2 for ``policies`` into ``out``: ``results.json`` (rewritten atomically after
+    each controller; ``resume`` keeps those already in it) and ``table.md`` (:func:`v2_table`)."""
+    from .stability_protocol import Settings, evaluate_policy_v2
+
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {str(out)!r} is an existing file; give a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    json_path = out / "results.json"
+    done: dict[str, dict] = {}
+    if resume and json_path.is_file():
+        try:
+            done = {r["policy"]: r for r in json.loads(json_path.read_text()).get("policies", [])}
+        except (json.JSONDecodeError, AttributeError, KeyError, TypeError) as error:
+            raise ConfigError(f"--resume: {str(json_path)!r} is not a results file ({error}); move it away") from None
+    settings = settings or Settings(seed=seed)
+    todo = [spec for spec in dict.fromkeys(policies) if spec not in done]
+    distributed: dict[str, dict] = {}
+    if backend != "local" and todo:
+        from .evaluation_tasks import evaluate_many_v2
+
+        for spec in todo:
+            load_policy(spec, env_config, trusted)
+        distributed = dict(zip(todo, evaluate_many_v2(todo, env_config, settings, parts, address, workers,
+                                                      store_dir=out / "chunks", trusted=trusted)))  # fmt: skip
+    results = []
+    for spec in policies:
+        if spec in done:
+            results.append(done[spec])
+            continue
+        result = distributed.get(spec) or evaluate_policy_v2(spec, env_config, settings, parts, trusted=trusted)
+        result["policy"] = spec
+        results.append(result)
+        write_text_atomic(json_path, json.dumps({"protocol_version": 2, "policies": results}, indent=2, default=float))
+    write_text_atomic(json_path, json.dumps({"protocol_version": 2, "policies": results}, indent=2, default=float))
+    write_text_atomic(out / "table.md", v2_table(results))
+    return {"policies": results}

@@ -185,7 +185,7 @@ def test_pretrained_policy_meets_the_target(env_config):
 def test_cli_evaluate_json_and_bogie_overrides(capsys):
     """``bogie evaluate --set`` evaluates on the modified bogie: a softer Kpz lowers the passive
     ramp's reach (Kpz -50 % has a linear critical speed near 210 km/h, below the ramp's start)."""
-    argv = ["evaluate", "--policy", "passive", "--parts", "ramp", "--json"]
+    argv = ["evaluate", "--env", "Bogie/Hunting-v0", "--policy", "passive", "--parts", "ramp", "--json"]
     assert cli_main(argv) == 0
     nominal = json.loads(capsys.readouterr().out)["policies"][0]
     assert cli_main(argv + ["--set", "Kpz=270000"]) == 0

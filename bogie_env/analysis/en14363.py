@@ -20,12 +20,33 @@ import json
 
 import numpy as np
 
-from ..dynamics import N_TRACK, BogieModel, guiding_forces_kernel, state_index
+from numba import njit
+
+from ..actuators import generalised_forces
+from ..dynamics import N_INPUTS, N_STATES, N_TRACK, BogieModel, _guiding_forces_row, _rhs_row, guiding_forces_kernel, state_index
+from ..integrate import OUT_FORCE
+from ..simulator import M_SPEED, BatchSimulator
 from ..stability import KMH
-from ..simulator import BatchSimulator
 from .bifurcation import limit_cycle_state
 
 FRAME_ACCEL_LIMIT = 5.8  # m/s^2, (12 - 1.6 / 5) / 2 rounded
+_DYB = state_index("dyb")
+
+
+@njit(cache=True)
+def running_signals_rows(sim_rows, out):
+    """EN 14363's running quantities of every row of a :class:`BatchSimulator` at the end of its
+    last interval, each row with its own bogie coefficients, speed, track sample and actuator
+    forces: ``out[n] = (ΣY wheelset 1, ΣY wheelset 2 (N), frame lateral acceleration (m/s²))``."""
+    x, motion, coefficients, _, _, _, output, track_sample, _ = sim_rows
+    q = np.empty(N_INPUTS)
+    dx = np.empty(N_STATES)
+    for n in range(x.shape[0]):
+        v = motion[n, M_SPEED]
+        _guiding_forces_row(x[n], v, track_sample[n], coefficients[n], out[n, :2])
+        generalised_forces(output[n, OUT_FORCE], q)
+        _rhs_row(x[n], v, q, track_sample[n], coefficients[n], dx)
+        out[n, 2] = dx[_DYB]
 
 
 def limit_cycle_quantities(model: BogieModel, speeds_kmh: np.ndarray, duration: float = 10.0, dt: float = 0.01) -> list[dict]:

@@ -1,0 +1,766 @@
+"""Evaluation protocol v2, for the ``Bogie/Hunting-v1`` tasks (``bogie evaluate --env Bogie/Hunting-v1``).
+
+Protocol v1 (:mod:`bogie_agents.evaluate`) stays the protocol of the ``-v0`` ids. v2 judges a
+controller the way a running-stability test judges a vehicle: under the v1 world (sensor
+noise and bias, 10 ms loop delay, force-rate limits, an EN 13848-5 *alert* track), with EN
+14363's running-stability quantities. The definitions, limits and sources are in
+``docs/results.md``, section "Protocol v2 (v1 env)"; in short:
+
+**Pass criterion** (:func:`assess`), on a fixed-speed run of ``duration_s`` seconds after the
+first ``transient_s`` seconds:
+
+- no blow-up (the env's ``blowup`` flag, or a non-finite state or action);
+- EN 14363 running stability: the sliding rms over 100 m (step 10 m) of the sum of guiding
+  forces ΣY of each wheelset, band-passed to f0 ± 2 Hz, at most :data:`SUM_Y_LIMIT_N`-type
+  ``(10 kN + P0 / 3) / 2`` (30 kN for this bogie's 150 kN axle load), and of the bogie frame's
+  lateral acceleration, same filter, at most ``(12 - m+ / 5) / 2`` m/s² (5.8 m/s² for the
+  1.61 t frame); f0 is the run's instability frequency, taken as the peak of the summed
+  spectra of the three signals, each relative to its limit, in :data:`F0_RANGE_HZ` (this
+  model hunts at 2-10 Hz across speeds and conicities);
+- flange-contact time: the fraction of the time during which either wheelset's lateral
+  displacement relative to the rail reaches the flange clearance is at most
+  ``flange_time_limit`` (0.01). This is the criterion that detects this model's hunting near
+  its onset, where ΣY and the frame acceleration stay below EN 14363's limits: the model has no
+  car body and a soft flange (measured in docs/results.md).
+
+**Closed-loop critical speed** of a *column* (a bogie, wheels and faults): for each of
+``seeds`` seeds (a seed sets the start on the track's 262 km alignment profile, the sensor
+noise and bias, and the initial perturbation: lateral offsets of both wheelsets and the frame
+of 0.5-1 x ``perturbation_m`` = 12 mm with random signs, beyond the 9 mm flange clearance,
+i.e. a flange impact as on a hunting cycle), the highest speed that passes, found on a
+geometric grid from ``floor_kmh`` to ``ceiling_kmh`` and then by per-row bisection to
+``tol_kmh``. All (column, seed, speed) rows of a round run in one batched
+:class:`~bogie_env.envs.task.HuntingTask` (one more for the columns with a different loop
+delay). Each seed's critical speed is taken below its *lowest* failing grid speed: stability
+is assumed to be lost once as the speed rises (a pass above a failure is counted in
+``non_monotonic_seeds``). The column's value is the lowest per-seed value (the highest speed
+that all seeds pass), reported with the spread (min / median / max).
+
+**Columns**: ``nominal`` (v1 defaults, conicity 0.025, no per-episode randomisation), the
+conicity grid (``by_conicity``), degraded bogies (``degraded``: primary longitudinal stiffness
+-50 %, primary lateral stiffness -50 %, secondary dampers -50 %, creep -50 %), one actuator
+channel failed (``actuator_failed``, each active channel), 20 ms total loop delay
+(``delay_20ms``), and the worst case over ``worst_case_draws`` scenarios drawn from the env
+config's randomisation ranges (``worst_case``, faults included).
+
+**What a controller is told**: it is built (``load_policy``) from the column's env config
+with the bogie's conicity replaced by the column's conicity, rounded to the nearest value of
+the conicity grid (wheel-profile measurements give the conicity class, not its exact value):
+a model-based controller (LQR, LQG) is gain-scheduled on that conicity; it is told nothing
+about degraded parts, faults or the extra delay. A learned policy ignores its config.
+
+**Parts** are a registry (:data:`PARTS`, :func:`register_part`): ``critical`` (all the columns
+above), ``cost`` and ``margins`` (:func:`bogie_agents.margins.margins_table`). Another module
+adds a part by decorating ``fn(ctx: PartContext) -> dict`` with ``@register_part("name")``;
+the dict is merged into the controller's result. A module in :data:`PART_MODULES` is imported
+before the registry is read, so its parts are available to ``bogie evaluate --parts``
+(``curving`` is expected there).
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable, Iterable, Mapping
+
+import numpy as np
+from scipy import signal
+
+from bogie_env.actuators import CHANNEL_NAMES, active_channels
+from bogie_env.analysis.en14363 import FRAME_ACCEL_LIMIT, running_signals_rows
+from bogie_env.envs import scenario as scenarios
+from bogie_env.envs.config import bogie_params, make_config, merge_config
+from bogie_env.envs.task import HuntingTask
+from bogie_env.params import ConfigError
+
+PROTOCOL_VERSION = 2
+#: Where the instability frequency f0 is looked for (Hz): above the track's longest
+#: wavelengths at low speed, below the wheelset modes (60-85 Hz) and the 50 Hz Nyquist limit.
+F0_RANGE_HZ = (0.5, 20.0)
+#: Named degraded bogies: reset options of :mod:`bogie_env.envs.scenario`.
+DEGRADED: dict[str, dict[str, float]] = {
+    "Kpx-50%": {"primary_longitudinal_stiffness": 0.5},
+    "Kpy-50%": {"primary_lateral_stiffness": 0.5},
+    "dampers-50%": {"damper_factor": 0.5},
+    "creep-50%": {"creep_factor": 0.5},
+}
+#: The scenario quantities a nominal row pins (everything the randomisation could draw).
+NOMINAL_OPTIONS: dict[str, Any] = {
+    "primary_longitudinal_stiffness": 1.0,
+    "primary_lateral_stiffness": 1.0,
+    "creep_factor": 1.0,
+    "damper_factor": 1.0,
+    "axle_load": 1.0,
+    "actuator_gain": 1.0,
+}
+
+
+def sum_y_limit_n(axle_load_n: float) -> float:
+    """EN 14363's ΣY rms limit for running stability: half of Prud'homme's limit
+    ``10 kN + 2 Q0 / 3`` with ``Q0 = P0 / 2`` the static wheel load, i.e. ``(10 kN + P0 / 3) / 2``."""
+    return 0.5 * (10e3 + axle_load_n / 3.0)
+
+
+def frame_accel_limit(frame_mass_kg: float) -> float:
+    """EN 14363's limit on the bogie frame's lateral acceleration (simplified method, sliding rms):
+    ``(12 - m+ / 5) / 2`` m/s² with ``m+`` the bogie mass in tonnes."""
+    return 0.5 * (12.0 - frame_mass_kg / 1e3 / 5.0)
+
+
+@dataclass
+class Settings:
+    """Protocol v2's settings (the defaults are the protocol; tests shrink them)."""
+
+    seeds: int = 10
+    seed: int = 0
+    floor_kmh: float = 40.0
+    ceiling_kmh: float = 600.0
+    grid_ratio: float = 1.4  # geometric coarse grid from the floor to the ceiling
+    tol_kmh: float = 2.0
+    duration_s: float = 20.0
+    transient_s: float = 5.0
+    perturbation_m: float = 0.012
+    window_m: float = 100.0
+    window_step_m: float = 10.0
+    band_half_width_hz: float = 2.0
+    flange_time_limit: float = 0.01
+    conicities: tuple[float, ...] = (0.025, 0.05, 0.1, 0.2, 0.3)
+    degraded: dict[str, dict[str, float]] = field(default_factory=lambda: copy.deepcopy(DEGRADED))
+    actuator_faults: bool = True
+    delay_steps: int = 2
+    worst_case_draws: int = 10
+    columns: tuple[str, ...] | None = None  # None: every column; else names (nominal, conicity:0.1, ...)
+    cost_speed_kmh: float = 300.0
+    cost_conicities: tuple[float, ...] = (0.025, 0.1)
+    cost_duration_s: float = 20.0
+    cost_seeds: int = 4
+    margin_speeds_kmh: tuple[float, ...] = (300.0, 350.0, 400.0, 450.0, 500.0)
+    progress: bool = True
+
+    def grid_kmh(self) -> np.ndarray:
+        """The coarse grid: geometric from the floor, the ceiling always included."""
+        n = max(1, int(math.ceil(math.log(self.ceiling_kmh / self.floor_kmh) / math.log(self.grid_ratio))))
+        return np.geomspace(self.floor_kmh, self.ceiling_kmh, n + 1)
+
+    def check(self) -> None:
+        if not 30.0 <= self.floor_kmh < self.ceiling_kmh <= 850.0:
+            raise ConfigError(f"protocol floor_kmh = {self.floor_kmh:g}, ceiling_kmh = {self.ceiling_kmh:g}: "
+                              "need 30 <= floor < ceiling <= 850 km/h (the env's speed range)")  # fmt: skip
+        if self.seeds < 1 or self.worst_case_draws < 0:
+            raise ConfigError(f"protocol seeds = {self.seeds} must be >= 1 and worst_case_draws >= 0")
+        if not 0 < self.transient_s < self.duration_s:
+            raise ConfigError(f"protocol transient_s = {self.transient_s:g} must be in (0, duration_s = {self.duration_s:g})")
+        if self.grid_ratio <= 1.0 or self.tol_kmh <= 0:
+            raise ConfigError("protocol grid_ratio must be > 1 and tol_kmh > 0")
+
+
+# ---- the pass criterion -----------------------------------------------------------------------
+def sliding_rms(x: np.ndarray, window: int, step: int) -> np.ndarray:
+    """rms of ``x`` (along the last axis) over windows of ``window`` samples starting every
+    ``step`` samples (only whole windows); shape ``x.shape[:-1] + (n_windows,)``."""
+    x = np.asarray(x, dtype=float)
+    if window < 1 or step < 1 or window > x.shape[-1]:
+        raise ValueError(f"sliding_rms: window {window} and step {step} must be >= 1 and window <= {x.shape[-1]} samples")
+    cs = np.concatenate([np.zeros(x.shape[:-1] + (1,)), np.cumsum(x * x, axis=-1)], axis=-1)
+    starts = np.arange(0, x.shape[-1] - window + 1, step)
+    return np.sqrt(np.maximum(cs[..., starts + window] - cs[..., starts], 0.0) / window)
+
+
+def dominant_frequency(x: np.ndarray, fs: float, band: tuple[float, float] = F0_RANGE_HZ) -> float:
+    """The peak of the Hann-windowed periodogram of ``x`` (summed over the leading axes) in ``band``."""
+    f, p = signal.periodogram(np.asarray(x, dtype=float), fs=fs, window="hann", axis=-1)
+    p = p.reshape(-1, f.size).sum(axis=0)
+    inside = (f >= band[0]) & (f <= band[1])
+    return float(f[inside][np.argmax(p[inside])])
+
+
+def band_pass(x: np.ndarray, f0: float, half_width: float, fs: float) -> np.ndarray:
+    """``x`` band-passed to ``f0 ± half_width`` (4th-order Butterworth, forward and backward:
+    zero phase), along the last axis; the lower edge is kept above 0.2 Hz."""
+    low = max(f0 - half_width, 0.2)
+    high = min(f0 + half_width, 0.45 * fs)
+    sos = signal.butter(4, [low, high], btype="band", fs=fs, output="sos")
+    return signal.sosfiltfilt(sos, np.asarray(x, dtype=float), axis=-1)
+
+
+@dataclass
+class Assessment:
+    """The criterion's quantities for N runs (arrays over the runs)."""
+
+    passed: np.ndarray
+    sum_y_rms_n: np.ndarray  # largest 100 m sliding rms of band-passed ΣY (either wheelset)
+    frame_accel_rms: np.ndarray  # same for the frame's lateral acceleration, m/s^2
+    flange_time: np.ndarray  # fraction of the evaluated time with |y - track| >= delta
+    f0_hz: np.ndarray
+    blowup: np.ndarray
+    sum_y_limit_n: np.ndarray
+    frame_accel_limit: float
+
+    def failed_by(self, i: int, flange_time_limit: float) -> list[str]:
+        """Which criteria run i fails."""
+        out = []
+        if self.blowup[i]:
+            return ["blowup"]
+        if self.sum_y_rms_n[i] > self.sum_y_limit_n[i]:
+            out.append("sum_y")
+        if self.frame_accel_rms[i] > self.frame_accel_limit:
+            out.append("frame_accel")
+        if self.flange_time[i] > flange_time_limit:
+            out.append("flange_contact")
+        return out
+
+
+def assess(history: np.ndarray, flange_time: np.ndarray, blowup: np.ndarray, speeds_ms: np.ndarray, dt: float,
+           axle_load_n: np.ndarray, frame_mass_kg: float, settings: Settings) -> Assessment:  # fmt: skip
+    """The pass criterion for N runs. ``history`` (N, 3, T): ΣY of wheelset 1 and 2 (N) and the
+    frame lateral acceleration (m/s²) over the evaluated time, sampled every ``dt``;
+    ``flange_time`` (N,) and ``blowup`` (N,) as measured during it."""
+    n = history.shape[0]
+    fs = 1.0 / dt
+    sum_y = np.full(n, np.inf)
+    accel = np.full(n, np.inf)
+    f0 = np.full(n, np.nan)
+    blown = np.asarray(blowup, dtype=bool) | ~np.all(np.isfinite(history), axis=(1, 2))
+    y_limit = sum_y_limit_n(np.asarray(axle_load_n, dtype=float)) * np.ones(n)
+    a_limit = frame_accel_limit(frame_mass_kg)
+    for i in np.nonzero(~blown)[0]:
+        # f0: where the three signals, each relative to its limit, have most power
+        f0[i] = dominant_frequency(history[i] / np.array([y_limit[i], y_limit[i], a_limit])[:, None], fs)
+        filtered = band_pass(history[i], f0[i], settings.band_half_width_hz, fs)
+        per_sample = speeds_ms[i] * dt
+        window = min(history.shape[2], max(1, int(round(settings.window_m / per_sample))))
+        step = max(1, int(round(settings.window_step_m / per_sample)))
+        rms = sliding_rms(filtered, window, step).max(axis=-1)
+        sum_y[i], accel[i] = rms[:2].max(), rms[2]
+    passed = ~blown & (sum_y <= y_limit) & (accel <= a_limit) & (np.asarray(flange_time) <= settings.flange_time_limit)
+    return Assessment(passed, sum_y, accel, np.asarray(flange_time, dtype=float), f0, blown, y_limit, a_limit)
+
+
+def criterion_text(settings: Settings, axle_load_n: float, frame_mass_kg: float) -> dict[str, Any]:
+    """The criterion as stated beside every result."""
+    return {
+        "evaluated_s": [settings.transient_s, settings.duration_s],
+        "sum_y_rms_limit_n": round(sum_y_limit_n(axle_load_n), 1),
+        "frame_accel_rms_limit_m_per_s2": round(frame_accel_limit(frame_mass_kg), 3),
+        "sliding_rms": f"over {settings.window_m:g} m, step {settings.window_step_m:g} m",
+        "band_pass": f"f0 +- {settings.band_half_width_hz:g} Hz (4th-order Butterworth, zero phase); "
+                     f"f0 = peak of the summed spectra of SumY 1, SumY 2 and the frame acceleration, each "
+                     f"relative to its limit, in {F0_RANGE_HZ[0]:g}-{F0_RANGE_HZ[1]:g} Hz",
+        "flange_time_limit": settings.flange_time_limit,
+        "flange_contact": "|wheelset lateral displacement relative to the rail| >= flange clearance, either wheelset",
+        "blowup": "the env's blowup flag (|y - track| > 0.1 m or integrator failure) or a non-finite state or action",
+        "sources": "EN 14363:2016 running stability (SumY: (10 kN + 2 Q0 / 3) / 2; frame: (12 - m+ / 5) / 2)",
+    }  # fmt: skip
+
+
+# ---- controllers by what they are told ----------------------------------------------------------
+PolicyFactory = Callable[[dict], Any]
+
+
+def factory_for(source: Any, trusted: bool = False) -> PolicyFactory:
+    """A policy factory ``env_config -> policy`` from a name or path (``load_policy``: a
+    classical controller is designed for the config's bogie), a factory, or a policy object
+    (copied for each use: controllers keep per-row state)."""
+    if isinstance(source, str):
+        from .policies import CLASSICAL, load_policy
+
+        if source in CLASSICAL:
+            return lambda cfg: load_policy(source, cfg, trusted)
+        cache: dict[str, Any] = {}
+
+        def learned(cfg: dict) -> Any:
+            if "policy" not in cache:
+                cache["policy"] = load_policy(source, cfg, trusted)
+            return copy.deepcopy(cache["policy"])
+
+        return learned
+    if callable(source) and not hasattr(source, "act"):
+        return source
+    return lambda cfg: copy.deepcopy(source)
+
+
+def told_conicity(conicity: float, grid: Iterable[float]) -> float:
+    """The conicity a controller is told: the nearest grid value (in ratio)."""
+    grid = np.asarray(list(grid), dtype=float)
+    return float(grid[np.argmin(np.abs(np.log(grid / conicity)))])
+
+
+def policy_config(env_config: dict, observation_type: str, conicity: float | None = None) -> dict:
+    """``env_config`` as the controller sees it: its observation type (a full-state observation
+    has no sensor model) and, if given, the bogie's conicity."""
+    update: dict[str, Any] = {"observation": {"type": observation_type}}
+    if observation_type != "sensors":
+        update["sensors"] = {"enabled": False}
+    if conicity is not None and not math.isclose(conicity, bogie_params(env_config).lam):
+        update["bogie_overrides"] = {**env_config.get("bogie_overrides", {}), "lam": conicity}
+    return make_config(merge_config(env_config, update))
+
+
+class RowGroups:
+    """One policy per group of rows of one task (e.g. per told conicity); acts on the batch."""
+
+    def __init__(self, groups: list[tuple[np.ndarray, Any]], action_dim: int) -> None:
+        self.groups = groups
+        self.action_dim = action_dim
+
+    def reset(self, n: int) -> None:
+        for rows, policy in self.groups:
+            policy.reset(len(rows))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        out = np.zeros((obs.shape[0], self.action_dim))
+        for rows, policy in self.groups:
+            out[rows] = np.asarray(policy.act(obs[rows]), dtype=float).reshape(len(rows), self.action_dim)
+        return out
+
+
+# ---- cases and columns ---------------------------------------------------------------------------
+@dataclass
+class Case:
+    """One (column, seed): the scenario a row runs with, apart from its speed."""
+
+    column: str
+    seed: int
+    options: dict[str, Any]  # reset options pinning the scenario
+    conicity: float
+    loop: str = "default"  # "default" or "delay": which task (loop delay is a task setting)
+    scenario: dict[str, Any] | None = None  # worst case: the drawn scenario
+
+
+def scenario_options(s: scenarios.Scenario) -> dict[str, Any]:
+    """Reset options that reproduce a drawn scenario."""
+    out: dict[str, Any] = {name: float(getattr(s, name)) for name in scenarios.RANGES if name not in ("conicity", "actuator_gain")}
+    out["actuator_gain"] = {name: float(g) for name, g in zip(CHANNEL_NAMES, s.actuator_gain)}
+    if s.failed_actuator is not None:
+        out["failed_actuator"] = s.failed_actuator
+    if s.stuck_actuator is not None:
+        out["stuck_actuator"], out["stuck_command"] = s.stuck_actuator, float(s.stuck_command)
+    return out
+
+
+def columns(env_config: dict, settings: Settings) -> dict[str, list[Case]]:
+    """Every column's cases (``seeds`` each; the worst case one per draw)."""
+    nominal_lam = bogie_params(env_config).lam
+    seeds = [settings.seed + i for i in range(settings.seeds)]
+    active = [CHANNEL_NAMES[k] for k in active_channels(env_config["actuators"])]
+
+    def cases(name: str, extra: Mapping[str, Any], lam: float = nominal_lam, loop: str = "default") -> list[Case]:
+        return [Case(name, s, {**NOMINAL_OPTIONS, "conicity": lam, **extra}, lam, loop) for s in seeds]
+
+    out: dict[str, list[Case]] = {"nominal": cases("nominal", {})}
+    for lam in settings.conicities:
+        if not math.isclose(lam, nominal_lam):
+            out[f"conicity:{lam:g}"] = cases(f"conicity:{lam:g}", {}, lam)
+    for name, options in settings.degraded.items():
+        out[f"degraded:{name}"] = cases(f"degraded:{name}", options)
+    if settings.actuator_faults:
+        for channel in active:
+            out[f"failed:{channel}"] = cases(f"failed:{channel}", {"failed_actuator": channel})
+    if settings.delay_steps != 1:
+        out[f"delay:{settings.delay_steps * 10}ms"] = cases(f"delay:{settings.delay_steps * 10}ms", {}, loop="delay")
+    ranges = env_config["randomize"]
+    if settings.worst_case_draws and ranges:
+        draws = []
+        for i in range(settings.worst_case_draws):
+            rng = np.random.default_rng([settings.seed, 14363, i])
+            s = scenarios.draw_scenario(ranges, {}, rng, active)
+            lam = s.conicity if s.conicity is not None else nominal_lam
+            draws.append(Case("worst_case", settings.seed + i, {**NOMINAL_OPTIONS, **scenario_options(s), "conicity": lam},
+                              lam, scenario=s.as_dict()))  # fmt: skip
+        out["worst_case"] = draws
+    if settings.columns is not None:
+        unknown = set(settings.columns) - set(out)
+        if unknown:
+            raise ConfigError(f"protocol columns {sorted(unknown)} are not known; known: {', '.join(out)}")
+        out = {name: out[name] for name in settings.columns}
+    return out
+
+
+# ---- running rows --------------------------------------------------------------------------------
+class Progress:
+    """Progress with the time left, on stderr (never stdout: ``--json`` stays clean)."""
+
+    def __init__(self, label: str, enabled: bool = True) -> None:
+        self.label, self.enabled = label, enabled
+        self.start = time.monotonic()
+        self.work_done = 0.0
+        self.last = 0.0
+
+    def report(self, what: str, done: float, remaining: float) -> None:
+        """``done``: work units finished so far in total; ``remaining``: an estimate of those left."""
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if now - self.last < 5.0 and remaining > 0:
+            return
+        self.last = now
+        elapsed = now - self.start
+        left = elapsed / done * remaining if done > 0 else float("nan")
+        print(f"[protocol v2] {self.label}: {what}; {elapsed:.0f} s elapsed, ~{left:.0f} s left", file=sys.stderr, flush=True)
+
+
+def protocol_config(env_config: dict, settings: Settings, observation_type: str, delay_steps: int | None = None) -> dict:
+    """The task config of the protocol's runs: fixed speeds over the search range, the env's
+    randomisation ranges kept (they set the integration step) but every draw pinned by reset
+    options, no random faults, the large initial perturbation on every row."""
+    ranges = {k: v for k, v in env_config["randomize"].items() if k not in scenarios.PROBABILITIES}
+    update: dict[str, Any] = {
+        "speed": {"start_kmh": settings.floor_kmh, "end_kmh": settings.ceiling_kmh, "accel": 0.0,
+                  "start_kmh_range": None, "end_kmh_range": None, "accel_range": None},
+        "randomize": ranges,
+        "large_perturbation_probability": 1.0,
+        "large_perturbation": settings.perturbation_m,
+        "observation": {"type": observation_type},
+    }  # fmt: skip
+    if observation_type != "sensors":
+        update["sensors"] = {"enabled": False}
+    if delay_steps is not None:
+        update["actuators"] = {name: {"delay_steps": delay_steps} for name in CHANNEL_NAMES}
+    return make_config(merge_config(env_config, update))
+
+
+class Runner:
+    """Runs batches of (case, speed) rows for one controller."""
+
+    def __init__(self, ctx: "PartContext") -> None:
+        self.ctx = ctx
+        self.settings = ctx.settings
+        self.progress = ctx.progress
+        self.row_steps_done = 0.0
+
+    def _task(self, cases: list[Case], speeds: np.ndarray, loop: str) -> tuple[HuntingTask, RowGroups]:
+        s, ctx = self.settings, self.ctx
+        cfg = protocol_config(ctx.env_config, s, ctx.observation_type, s.delay_steps if loop == "delay" else None)
+        task = ctx.task(len(cases), cfg)
+        rows = np.arange(len(cases))
+        task.seed_rows(rows, [c.seed for c in cases])
+        for i, (case, v) in enumerate(zip(cases, speeds)):
+            task.reset_rows(np.array([i]), {**case.options, "start_kmh": float(v), "end_kmh": float(v), "accel": 0.0})
+        told = np.array([told_conicity(c.conicity, s.conicities) for c in cases])
+        groups = [(np.nonzero(told == lam)[0], ctx.policy(float(lam))) for lam in np.unique(told)]
+        policy = RowGroups(groups, task.action_dim)
+        policy.reset(len(cases))
+        return task, policy
+
+    def run(self, cases: list[Case], speeds_kmh: np.ndarray, what: str, remaining_rows: float) -> Assessment:
+        """Fixed-speed runs of every (case, speed) row; the criterion per row."""
+        s = self.settings
+        n = len(cases)
+        speeds_kmh = np.asarray(speeds_kmh, dtype=float)
+        loops = {}
+        for loop in ("default", "delay"):
+            idx = np.array([i for i, c in enumerate(cases) if c.loop == loop], dtype=int)
+            if idx.size:
+                loops[loop] = (idx, *self._task([cases[i] for i in idx], speeds_kmh[idx], loop))
+        dt = next(iter(loops.values()))[1].config["dt"]
+        steps = int(round(s.duration_s / dt))
+        first = int(round(s.transient_s / dt))
+        history = np.zeros((n, 3, steps - first), dtype=np.float32)
+        contact = np.zeros(n)
+        blowup = np.zeros(n, dtype=bool)
+        buffers = {loop: np.zeros((idx.size, 3)) for loop, (idx, _, _) in loops.items()}
+        for k in range(steps):
+            for loop, (idx, task, policy) in loops.items():
+                actions = policy.act(task.obs)
+                bad = ~np.all(np.isfinite(actions), axis=1)
+                if bad.any():
+                    blowup[idx[bad]] = True
+                    actions[bad] = 0.0
+                task.step(actions)
+                blowup[idx] |= task.blowup | ~np.all(np.isfinite(task.states), axis=1)
+                if k >= first:
+                    running_signals_rows(task.sim.rows, buffers[loop])
+                    history[idx, :, k - first] = buffers[loop]
+                    contact[idx] += np.any(np.abs(task.relative_lateral_m) >= task.flange_clearance[:, None], axis=1)
+            if k % 100 == 99:
+                done = self.row_steps_done + n * (k + 1)
+                self.progress.report(f"{what}: {k + 1}/{steps} steps of {n} rows", done,
+                                     n * (steps - k - 1) + remaining_rows * steps)  # fmt: skip
+        self.row_steps_done += n * steps
+        axle = np.zeros(n)
+        for loop, (idx, task, _) in loops.items():
+            axle[idx] = [task.scenarios[i].axle_load * task.base_params.Wpa for i in range(idx.size)]
+        frame_mass = next(iter(loops.values()))[1].base_params.mb
+        return assess(history, contact / (steps - first), blowup, speeds_kmh / 3.6, dt, axle, frame_mass, s)
+
+
+# ---- the critical-speed search -------------------------------------------------------------------
+def search(runner: Runner, cases: list[Case]) -> dict[str, np.ndarray]:
+    """Per-case critical speed: coarse grid for every case, then per-case bisection; every round
+    is one batch of rows."""
+    s = runner.settings
+    grid = s.grid_kmh()
+    m = len(cases)
+    rounds_left = int(math.ceil(math.log2(max(np.diff(grid).max() / s.tol_kmh, 1.0))))
+    rows = [(i, j) for i in range(m) for j in range(grid.size)]
+    result = runner.run([cases[i] for i, _ in rows], np.array([grid[j] for _, j in rows]), "coarse grid",
+                        remaining_rows=m * rounds_left)  # fmt: skip
+    passed = result.passed.reshape(m, grid.size)
+    first_fail = np.where(passed.all(axis=1), grid.size, np.argmin(passed, axis=1))
+    non_monotonic = np.array([bool(passed[i, first_fail[i]:].any()) for i in range(m)])
+    lo = np.where(first_fail > 0, grid[np.maximum(first_fail - 1, 0)], np.nan)
+    hi = np.where(first_fail < grid.size, grid[np.minimum(first_fail, grid.size - 1)], np.nan)
+    failed_by: list[list[str]] = [[] for _ in range(m)]
+    sample = {"f0_hz": np.full(m, np.nan), "sum_y_rms_n": np.full(m, np.nan), "frame_accel_rms": np.full(m, np.nan),
+              "flange_time": np.full(m, np.nan)}  # fmt: skip
+    for i in range(m):  # what the first failing speed fails by
+        if first_fail[i] < grid.size:
+            r = i * grid.size + first_fail[i]
+            failed_by[i] = result.failed_by(r, s.flange_time_limit)
+            for key in sample:
+                sample[key][i] = getattr(result, key)[r]
+    round_no = 0
+    while True:
+        active = np.nonzero(np.isfinite(lo) & np.isfinite(hi) & (hi - lo > s.tol_kmh))[0]
+        if active.size == 0:
+            break
+        round_no += 1
+        mid = 0.5 * (lo[active] + hi[active])
+        left = max(0, int(math.ceil(math.log2(max((hi[active] - lo[active]).max() / s.tol_kmh, 1.0)))) - 1)
+        r = runner.run([cases[i] for i in active], mid, f"bisection round {round_no}", remaining_rows=active.size * left)
+        for a, i in enumerate(active):
+            if r.passed[a]:
+                lo[i] = mid[a]
+            else:
+                hi[i] = mid[a]
+                failed_by[i] = r.failed_by(a, s.flange_time_limit)
+                for key in sample:
+                    sample[key][i] = getattr(r, key)[a]
+    critical = np.where(np.isnan(lo), grid[0], lo)
+    bound = np.where(first_fail == grid.size, "at_least", np.where(first_fail == 0, "at_most", "bisected"))
+    return {"critical_kmh": critical, "bound": bound, "non_monotonic": non_monotonic, "failed_by": failed_by,
+            "at_failure": sample}  # fmt: skip
+
+
+def column_result(cases: list[Case], found: dict[str, Any], idx: np.ndarray, settings: Settings) -> dict[str, Any]:
+    """One column: the highest speed all its seeds pass, with the spread over the seeds."""
+    crit = found["critical_kmh"][idx]
+    bounds = found["bound"][idx]
+    worst = int(np.argmin(crit))
+    value = float(crit[worst])
+    bound = "at_least" if np.all(bounds == "at_least") else ("at_most" if bounds[worst] == "at_most" else "bisected")
+    out: dict[str, Any] = {
+        "kmh": round(value, 1),
+        "bound": {"at_least": f"at least: every seed passes at the ceiling {settings.ceiling_kmh:g} km/h",
+                  "at_most": f"at most: a seed fails at the floor {settings.floor_kmh:g} km/h",
+                  "bisected": f"bisection to {settings.tol_kmh:g} km/h"}[bound],
+        "floor_kmh": settings.floor_kmh,
+        "ceiling_kmh": settings.ceiling_kmh,
+        "seeds": [cases[i].seed for i in idx],
+        "per_seed_kmh": [round(float(v), 1) for v in crit],
+        "spread_kmh": {"min": round(float(crit.min()), 1), "median": round(float(np.median(crit)), 1),
+                       "max": round(float(crit.max()), 1)},
+        "non_monotonic_seeds": int(found["non_monotonic"][idx].sum()),
+        "worst_seed_fails_by": found["failed_by"][idx[worst]],
+    }  # fmt: skip
+    at = found["at_failure"]
+    if np.isfinite(at["f0_hz"][idx[worst]]):
+        out["worst_seed_at_failure"] = {"f0_hz": round(float(at["f0_hz"][idx[worst]]), 2),
+                                        "sum_y_rms_kn": round(float(at["sum_y_rms_n"][idx[worst]]) / 1e3, 2),
+                                        "frame_accel_rms_m_per_s2": round(float(at["frame_accel_rms"][idx[worst]]), 2),
+                                        "flange_time": round(float(at["flange_time"][idx[worst]]), 4)}  # fmt: skip
+    if cases[idx[worst]].scenario is not None:
+        out["worst_scenario"] = cases[idx[worst]].scenario
+    return out
+
+
+# ---- parts ---------------------------------------------------------------------------------------
+@dataclass
+class PartContext:
+    """What a part gets: the controller (as a factory of policies told their env config), the
+    v1 env config, the settings, and the progress reporter."""
+
+    factory: PolicyFactory
+    env_config: dict
+    settings: Settings
+    observation_type: str
+    progress: Progress
+    n_sub: int | None = None  # the integration substeps of the protocol's tasks, once chosen
+
+    def task(self, n: int, config: dict) -> HuntingTask:
+        """A task of the protocol (every task takes the substeps the first one chose: choosing
+        them takes seconds, and they depend only on the speed and randomisation ranges)."""
+        if self.n_sub is not None:
+            config = merge_config(config, {"integration": {"n_sub": self.n_sub}})
+        task = HuntingTask(n, config)
+        if self.n_sub is None:
+            self.n_sub = task.n_sub
+        return task
+
+    def policy(self, conicity: float | None = None) -> Any:
+        """A fresh policy built for the env config (and, if given, told this conicity)."""
+        return self.factory(policy_config(self.env_config, self.observation_type, conicity))
+
+
+PartFunction = Callable[[PartContext], dict]
+#: The protocol's parts, in their default order: name -> function(ctx) -> dict merged into the result.
+PARTS: dict[str, PartFunction] = {}
+#: Modules that register more parts when imported (e.g. a curving part); imported lazily.
+PART_MODULES: tuple[str, ...] = ()
+DEFAULT_PARTS = ("critical", "cost")
+
+
+def register_part(name: str) -> Callable[[PartFunction], PartFunction]:
+    """Decorator: add a part to :data:`PARTS` under ``name``."""
+
+    def wrap(fn: PartFunction) -> PartFunction:
+        PARTS[name] = fn
+        return fn
+
+    return wrap
+
+
+def available_parts() -> dict[str, PartFunction]:
+    """:data:`PARTS` after importing :data:`PART_MODULES` (a missing module is skipped)."""
+    for module in PART_MODULES:
+        try:
+            importlib.import_module(module)
+        except ModuleNotFoundError:
+            pass
+    return PARTS
+
+
+@register_part("critical")
+def critical_part(ctx: PartContext) -> dict[str, Any]:
+    """Closed-loop critical speed of every column (one batched search)."""
+    s = ctx.settings
+    cols = columns(ctx.env_config, s)
+    cases = [c for col in cols.values() for c in col]
+    runner = Runner(ctx)
+    found = search(runner, cases)
+    results: dict[str, dict] = {}
+    start = 0
+    for name, col in cols.items():
+        results[name] = column_result(cases, found, np.arange(start, start + len(col)), s)
+        start += len(col)
+    params = bogie_params(ctx.env_config)
+    out: dict[str, Any] = {
+        "search": {"floor_kmh": s.floor_kmh, "ceiling_kmh": s.ceiling_kmh, "grid_kmh": [round(v, 1) for v in s.grid_kmh()],
+                   "tol_kmh": s.tol_kmh, "duration_s": s.duration_s, "seeds": s.seeds,
+                   "perturbation_m": s.perturbation_m,
+                   "assumption": "stability is lost once as the speed rises: a seed's critical speed lies below its "
+                                 "lowest failing grid speed"},
+        "criterion": criterion_text(s, params.Wpa, params.mb),
+        "told": "model-based controllers are designed for the column's conicity, rounded to the nearest of "
+                f"{', '.join(f'{c:g}' for c in s.conicities)}; nothing about degradation, faults or extra delay",
+    }  # fmt: skip
+    if "nominal" in results:
+        out["closed_loop_critical_speed_kmh"] = results["nominal"]["kmh"]
+        out["nominal"] = results["nominal"]
+    by_conicity = {}
+    for lam in s.conicities:
+        key = "nominal" if math.isclose(lam, params.lam) else f"conicity:{lam:g}"
+        if key in results:
+            by_conicity[f"{lam:g}"] = results[key]
+    out["by_conicity"] = by_conicity
+    out["degraded"] = {k.split(":", 1)[1]: v for k, v in results.items() if k.startswith("degraded:")}
+    out["actuator_failed"] = {k.split(":", 1)[1]: v for k, v in results.items() if k.startswith("failed:")}
+    for k, v in results.items():
+        if k.startswith("delay:"):
+            out[f"delay_{k.split(':', 1)[1]}"] = v
+    if "worst_case" in results:
+        out["worst_case"] = results["worst_case"]
+    return out
+
+
+@register_part("cost")
+def cost_part(ctx: PartContext) -> dict[str, Any]:
+    """Actuator cost and ride on the irregular track at a fixed speed, from a small perturbation."""
+    s = ctx.settings
+    out: dict[str, Any] = {}
+    for lam in s.cost_conicities:
+        cfg = protocol_config(ctx.env_config, s, ctx.observation_type)
+        cfg = merge_config(cfg, {"large_perturbation_probability": 0.0})
+        n = s.cost_seeds
+        task = ctx.task(n, cfg)
+        task.seed_rows(np.arange(n), [s.seed + i for i in range(n)])
+        task.reset_rows(np.arange(n), {**NOMINAL_OPTIONS, "conicity": lam, "start_kmh": s.cost_speed_kmh,
+                                       "end_kmh": s.cost_speed_kmh, "accel": 0.0})  # fmt: skip
+        policy = ctx.policy(told_conicity(lam, s.conicities))
+        policy.reset(n)
+        dt = task.config["dt"]
+        steps, first = int(round(s.cost_duration_s / dt)), int(round(s.transient_s / dt))
+        k_count = steps - first
+        force_sq = np.zeros((n, len(CHANNEL_NAMES)))
+        rate_sq = np.zeros_like(force_sq)
+        power = np.zeros_like(force_sq)
+        accel_sq = np.zeros(n)
+        contact = np.zeros(n)
+        blowup = np.zeros(n, dtype=bool)
+        buffer = np.zeros((n, 3))
+        previous = task.actuator_force.copy()
+        for k in range(steps):
+            actions = np.asarray(policy.act(task.obs), dtype=float)
+            bad = ~np.all(np.isfinite(actions), axis=1)
+            blowup |= bad
+            actions[bad] = 0.0
+            task.step(actions)
+            blowup |= task.blowup
+            f = task.actuator_force
+            if k >= first:
+                running_signals_rows(task.sim.rows, buffer)
+                force_sq += f * f
+                rate_sq += ((f - previous) / dt) ** 2
+                power += task.actuator_power
+                accel_sq += buffer[:, 2] ** 2
+                contact += np.any(np.abs(task.relative_lateral_m) >= task.flange_clearance[:, None], axis=1)
+            previous[:] = f
+            ctx.progress.report(f"cost at conicity {lam:g}: {k + 1}/{steps} steps", k + 1, steps - k - 1)
+        limits = task.actuator_limits
+        active = [CHANNEL_NAMES[k] for k in task.active_channels]
+        col = {
+            "speed_kmh": s.cost_speed_kmh, "conicity": lam, "track": task.config["track"]["level"] or task.config["track"]["rms"],
+            "seeds": n, "evaluated_s": [s.transient_s, s.cost_duration_s],
+            "rms_force": {c: round(float(np.sqrt(force_sq[:, k].mean() / k_count)), 1) for k, c in enumerate(CHANNEL_NAMES) if c in active},
+            "rms_force_rate": {c: round(float(np.sqrt(rate_sq[:, k].mean() / k_count)), 1) for k, c in enumerate(CHANNEL_NAMES) if c in active},
+            "mean_power_w": {c: round(float(power[:, k].mean() / k_count), 2) for k, c in enumerate(CHANNEL_NAMES) if c in active},
+            "limits": {c: float(limits[k]) for k, c in enumerate(CHANNEL_NAMES) if c in active},
+            "frame_accel_rms_m_per_s2": round(float(np.sqrt(accel_sq.mean() / k_count)), 4),
+            "flange_time": round(float(contact.mean() / k_count), 4),
+            "blowup_seeds": int(blowup.sum()),
+            "body_side": "not available: the model has no car body (the secondary suspension ends on a fixed body)",
+        }  # fmt: skip
+        out[f"{lam:g}"] = col
+    return {"cost": out}
+
+
+@register_part("margins")
+def margins_part(ctx: PartContext) -> dict[str, Any]:
+    """Stability margins at nominal conicity (:func:`bogie_agents.margins.margins_table`)."""
+    from .margins import margins_table
+
+    return {"margins": margins_table(ctx.policy(), ctx.env_config, list(ctx.settings.margin_speeds_kmh))}
+
+
+# ---- the protocol ---------------------------------------------------------------------------------
+def evaluate_policy_v2(source: Any, env_config: Mapping[str, Any] | None = None, settings: Settings | None = None,
+                       parts: Iterable[str] = DEFAULT_PARTS, trusted: bool = False, label: str | None = None) -> dict:  # fmt: skip
+    """Protocol v2 for one controller. ``source``: a policy name or path (``load_policy``; a
+    path needs ``trusted``), a factory ``env_config -> policy``, or a policy object (copied for
+    each use); ``env_config``: a v1 env config (default: the ``v1`` variant)."""
+    settings = settings or Settings()
+    settings.check()
+    env_config = make_config(variant="v1") if env_config is None else make_config(dict(env_config))
+    registry = available_parts()
+    parts = tuple(parts)
+    unknown = [p for p in parts if p not in registry]
+    if unknown:
+        raise ConfigError(f"protocol v2 parts {unknown} are not known; known: {', '.join(registry)}")
+    factory = factory_for(source, trusted)
+    probe = factory(env_config)
+    observation_type = getattr(probe, "observation_type", "sensors")
+    name = label or (source if isinstance(source, str) else getattr(probe, "name", type(probe).__name__))
+    ctx = PartContext(factory, env_config, settings, observation_type, Progress(str(name), settings.progress))
+    out: dict[str, Any] = {"policy": name, "observation_type": observation_type, "protocol_version": PROTOCOL_VERSION}
+    for part in parts:
+        out.update(registry[part](ctx))
+    return out
+
+
+def settings_dict(settings: Settings) -> dict[str, Any]:
+    """The settings as JSON (for the result and the distributed store key)."""
+    return asdict(settings)

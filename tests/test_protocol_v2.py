@@ -1,0 +1,185 @@
+"""Evaluation protocol v2 (agents/stability_protocol.py): the pass criterion against independent
+numpy computations, the passive critical speed against the linear one, a destabilising
+controller, the JSON keys and the CLI's choice of protocol by env version.
+
+Planted bug checked by hand: a 100 m window shortened to 10 m (``window = ... / 10`` in
+``assess``) makes ``test_a_short_burst_passes_the_100_m_rms`` fail.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bogie_agents import stability_protocol as sp
+from bogie_agents.controllers import SkyhookController
+from bogie_env.envs.config import make_config
+from bogie_env.stability import critical_speed
+from bogie_env.dynamics import BogieModel
+from bogie_env.params import load_params
+
+DT = 0.01
+
+
+def tiny_kwargs(**overrides) -> dict:
+    """Small settings for fast tests: 2 seeds, short runs, a coarse search."""
+    base = dict(seeds=2, floor_kmh=80.0, ceiling_kmh=300.0, grid_ratio=1.35, tol_kmh=3.0, duration_s=12.0,
+                transient_s=4.0, worst_case_draws=2, cost_duration_s=6.0, cost_seeds=2, progress=False)  # fmt: skip
+    return {**base, **overrides}
+
+
+def tiny(**overrides) -> sp.Settings:
+    return sp.Settings(**tiny_kwargs(**overrides))
+
+
+# ---- the criterion's pieces against numpy ---------------------------------------------------------
+def test_sliding_rms_against_a_numpy_loop_and_a_sine():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(2, 1000))
+    window, step = 97, 13
+    expected = [[math.sqrt(float(np.mean(row[a : a + window] ** 2))) for a in range(0, 1000 - window + 1, step)] for row in x]
+    np.testing.assert_allclose(sp.sliding_rms(x, window, step), expected, rtol=1e-10)
+    t = np.arange(0, 20, DT)
+    sine = 3.0 * np.sin(2 * np.pi * 2.5 * t)
+    np.testing.assert_allclose(sp.sliding_rms(sine, 200, 10), 3.0 / math.sqrt(2), rtol=1e-3)  # whole periods: A / sqrt 2
+
+
+def test_band_pass_keeps_f0_and_removes_the_rest():
+    t = np.arange(0, 30, DT)
+    inside = np.sin(2 * np.pi * 4.0 * t)
+    outside = np.sin(2 * np.pi * 0.5 * t) + np.sin(2 * np.pi * 15.0 * t)
+    assert sp.dominant_frequency(np.stack([inside, 0.1 * outside]), 1 / DT) == pytest.approx(4.0, abs=0.05)
+    filtered = sp.band_pass(inside + outside, 4.0, 2.0, 1 / DT)
+    core = slice(300, -300)
+    np.testing.assert_allclose(filtered[core], inside[core], atol=0.03)
+
+
+def test_en14363_limits_for_this_bogie():
+    p = load_params(None)
+    assert sp.sum_y_limit_n(p.Wpa) == pytest.approx(30e3)  # (10 kN + 150 kN / 3) / 2
+    assert sp.frame_accel_limit(p.mb) == pytest.approx(5.839, abs=1e-3)  # (12 - 1.61 / 5) / 2
+
+
+def _history(sum_y: np.ndarray, accel: np.ndarray | None = None) -> np.ndarray:
+    accel = np.zeros_like(sum_y) if accel is None else accel
+    return np.stack([sum_y, 0.5 * sum_y, accel])[None]
+
+
+def _assess(history, speed_kmh=200.0, flange=0.0, settings=None):
+    settings = settings or sp.Settings()
+    return sp.assess(history, np.array([flange]), np.array([False]), np.array([speed_kmh / 3.6]), DT, np.array([150e3]),
+                     1610.0, settings)  # fmt: skip
+
+
+def test_a_sustained_oscillation_above_the_limit_fails_and_below_passes():
+    t = np.arange(0, 15, DT)
+    for amplitude, ok in ((40e3, True), (45e3, False)):  # rms 28.3 kN and 31.8 kN against 30 kN
+        result = _assess(_history(amplitude * np.sin(2 * np.pi * 3.0 * t)))
+        assert bool(result.passed[0]) is ok, amplitude
+        assert result.f0_hz[0] == pytest.approx(3.0, abs=0.1)
+        assert result.sum_y_rms_n[0] == pytest.approx(amplitude / math.sqrt(2), rel=0.02)
+    accel = _assess(_history(np.zeros_like(t), 9.0 * np.sin(2 * np.pi * 3.0 * t) + 1e-3 * np.sin(2 * np.pi * 3 * t)))
+    assert not accel.passed[0] and accel.failed_by(0, 0.01) == ["frame_accel"]  # 6.4 m/s^2 rms > 5.84
+    assert _assess(_history(np.zeros_like(t) + 1e-3 * np.sin(2 * np.pi * 3 * t)), flange=0.02).failed_by(0, 0.01) == ["flange_contact"]
+
+
+def test_a_short_burst_passes_the_100_m_rms():
+    """20 m of a 3 Hz oscillation at 60 kN rms, on 400 m of track at 200 km/h: the 100 m rms is
+    60 kN x sqrt(20 / 100) = 26.8 kN, below the 30 kN limit (a 10 m window would see 60 kN)."""
+    v = 200 / 3.6
+    t = np.arange(0, 400 / v, DT)
+    burst = (t * v > 150) & (t * v < 170)
+    sum_y = 60e3 * math.sqrt(2) * np.sin(2 * np.pi * 3.0 * t) * burst + 1e3 * np.sin(2 * np.pi * 3.0 * t)
+    result = _assess(_history(sum_y))
+    assert result.sum_y_rms_n[0] == pytest.approx(60e3 * math.sqrt(0.2), rel=0.1)
+    assert result.passed[0]
+
+
+def test_blowup_and_non_finite_fail():
+    t = np.arange(0, 10, DT)
+    h = _history(np.sin(2 * np.pi * 3 * t))
+    h[0, 0, 100] = np.nan
+    assert not _assess(h).passed[0] and _assess(h).failed_by(0, 0.01) == ["blowup"]
+
+
+# ---- closed loop ------------------------------------------------------------------------------------
+def test_passive_critical_speed_at_conicity_01_is_near_the_linear_one():
+    """Passive, conicity 0.1: within 15 km/h of the linear critical speed (141 km/h; the large
+    initial perturbation and the rough track may lower it)."""
+    v1 = make_config(variant="v1")
+    linear = critical_speed(BogieModel(load_params(None).replace(lam=0.1))).speed_kmh
+    result = sp.evaluate_policy_v2("passive", v1, tiny(columns=("conicity:0.1",)), parts=("critical",))
+    entry = result["by_conicity"]["0.1"]
+    assert entry["bound"].startswith("bisection")
+    assert linear - 15 <= entry["kmh"] <= linear + 5, (entry, linear)
+    assert entry["worst_seed_fails_by"]  # what the failing speed failed by is reported
+
+
+def test_a_destabilising_controller_fails_lower_than_passive():
+    """Negative skyhook damping (positive velocity feedback) lowers the critical speed."""
+    v1 = make_config(variant="v1")
+    settings = tiny(columns=("conicity:0.1",), duration_s=10.0, tol_kmh=5.0)
+    passive = sp.evaluate_policy_v2("passive", v1, settings, parts=("critical",))["by_conicity"]["0.1"]["kmh"]
+    bad = sp.evaluate_policy_v2(lambda cfg: SkyhookController(cfg, c_lateral=-6e4, c_yaw=-6e5, c_wheelset=-6e5), v1, settings,
+                                parts=("critical",), label="anti-skyhook")["by_conicity"]["0.1"]["kmh"]  # fmt: skip
+    assert bad < passive - 10, (bad, passive)
+
+
+def test_json_keys_and_determinism():
+    v1 = make_config(variant="v1")
+    settings = tiny(seeds=1, grid_ratio=2.0, floor_kmh=60.0, ceiling_kmh=480.0, tol_kmh=60.0, duration_s=6.0, transient_s=2.0,
+                    worst_case_draws=1, cost_conicities=(0.025,), cost_duration_s=4.0)  # fmt: skip
+    result = sp.evaluate_policy_v2("passive", v1, settings, parts=("critical", "cost"))
+    assert result["protocol_version"] == 2
+    assert isinstance(result["closed_loop_critical_speed_kmh"], float)
+    assert list(result["by_conicity"]) == ["0.025", "0.05", "0.1", "0.2", "0.3"]
+    assert result["by_conicity"]["0.025"] == result["nominal"]
+    for entry in result["by_conicity"].values():
+        assert {"kmh", "bound", "spread_kmh", "per_seed_kmh", "floor_kmh", "ceiling_kmh"} <= set(entry)
+    assert set(result["degraded"]) == {"Kpx-50%", "Kpy-50%", "dampers-50%", "creep-50%"}
+    assert set(result["actuator_failed"]) == {"frame_lateral", "frame_yaw", "wheelset1_yaw", "wheelset2_yaw"}
+    assert "delay_20ms" in result and "worst_scenario" in result["worst_case"]
+    assert result["search"]["ceiling_kmh"] == 480.0 and result["criterion"]["sum_y_rms_limit_n"] == 30000.0
+    cost = result["cost"]["0.025"]
+    assert set(cost["rms_force"]) == {"frame_lateral", "frame_yaw", "wheelset1_yaw", "wheelset2_yaw"}
+    assert all(v == 0.0 for v in cost["rms_force"].values())  # passive: zero command
+    assert cost["frame_accel_rms_m_per_s2"] > 0
+    settings.columns = ("conicity:0.1", "worst_case")
+    first = sp.evaluate_policy_v2("passive", v1, settings, parts=("critical",))
+    again = sp.evaluate_policy_v2("passive", v1, settings, parts=("critical",))
+    assert json.dumps(again, sort_keys=True) == json.dumps(first, sort_keys=True)  # seeds give identical results
+
+
+def test_told_conicity_and_registry():
+    assert sp.told_conicity(0.12, (0.025, 0.05, 0.1, 0.2, 0.3)) == 0.1
+    assert sp.told_conicity(0.16, (0.025, 0.05, 0.1, 0.2, 0.3)) == 0.2
+    assert {"critical", "cost", "margins"} <= set(sp.available_parts())
+
+    @sp.register_part("probe")
+    def probe(ctx):
+        return {"probe": ctx.settings.seeds}
+
+    try:
+        out = sp.evaluate_policy_v2("passive", make_config(variant="v1"), tiny(), parts=("probe",))
+        assert out["probe"] == 2
+    finally:
+        sp.PARTS.pop("probe")
+    with pytest.raises(Exception, match="not known"):
+        sp.evaluate_policy_v2("passive", make_config(variant="v1"), tiny(), parts=("nope",))
+
+
+def test_cli_picks_the_protocol_by_env_version(capsys, monkeypatch):
+    from bogie_agents.cli import main as cli_main
+
+    real = sp.Settings
+    monkeypatch.setattr(sp, "Settings", lambda **kw: real(**{**tiny_kwargs(seeds=1, columns=("conicity:0.1",)), **kw}))
+    assert cli_main(["evaluate", "--policy", "passive", "--parts", "critical", "--json"]) == 0
+    captured = capsys.readouterr()
+    payload = json.loads(captured.out)  # stdout is the JSON alone; progress goes to stderr
+    assert payload["env_id"] == "Bogie/Hunting-v1" and payload["env_version"] == "v1" and payload["protocol_version"] == 2
+    assert "0.1" in payload["policies"][0]["by_conicity"]
+    assert cli_main(["evaluate", "--env", "Bogie/Hunting-v0", "--policy", "passive", "--parts", "ramp", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["protocol_version"] == 1
