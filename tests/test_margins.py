@@ -244,7 +244,7 @@ def test_cli_margins_json(capsys, tmp_path):
 
 
 def test_evaluate_can_report_margins(capsys):
-    code = cli_main(["evaluate", "--policy", "passive", "--parts", "margins", "--json"])
+    code = cli_main(["evaluate", "--env", "Bogie/Hunting-v0", "--policy", "passive", "--parts", "margins", "--json"])
     assert code == 0
     entry = json.loads(capsys.readouterr().out)["policies"][0]
     assert entry["policy"] == "passive"

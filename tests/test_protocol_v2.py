@@ -183,3 +183,37 @@ def test_cli_picks_the_protocol_by_env_version(capsys, monkeypatch):
     assert "0.1" in payload["policies"][0]["by_conicity"]
     assert cli_main(["evaluate", "--env", "Bogie/Hunting-v0", "--policy", "passive", "--parts", "ramp", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["protocol_version"] == 1
+
+
+def _entry(kmh: float, bound: str = "bisection to 2 km/h") -> dict:
+    return {"kmh": kmh, "bound": bound, "spread_kmh": {"min": kmh, "median": kmh + 1, "max": kmh + 2}}
+
+
+def test_v2_table_leaves_out_columns_where_every_controller_is_at_the_ceiling():
+    from bogie_agents.results import v2_table
+
+    ceiling = _entry(600.0, "at least: every seed passes at the ceiling 600 km/h")
+    results = [
+        {"policy": "a", "nominal": _entry(350.0), "by_conicity": {"0.025": _entry(350.0), "0.1": _entry(130.0)},
+         "degraded": {"Kpx-50%": ceiling}, "actuator_failed": {"frame_yaw": _entry(300.0), "frame_lateral": _entry(200.0)}},
+        {"policy": "b", "nominal": ceiling, "by_conicity": {"0.025": ceiling, "0.1": _entry(250.0)},
+         "degraded": {"Kpx-50%": ceiling}, "actuator_failed": {}},
+    ]  # fmt: skip
+    table = v2_table(results)
+    header = table.splitlines()[0]
+    assert "Kpx-50%" not in header and "λ 0.1" in header and "nominal" in header
+    assert "Left out (every controller at the ceiling): Kpx-50%" in table
+    assert "| a | 350 (351-352) |" in table and "| b | ≥ 600 |" in table
+    assert "200 (201-202)" in table  # the worst failed channel
+
+
+def test_results_v2_writes_json_and_table_and_resumes(tmp_path, monkeypatch):
+    import bogie_agents.results as results
+
+    settings = tiny(seeds=1, columns=("conicity:0.1",))
+    payload = results.run_v2(["passive"], make_config(variant="v1"), tmp_path, settings=settings, parts=("critical",))
+    assert (tmp_path / "table.md").is_file()
+    assert json.loads((tmp_path / "results.json").read_text())["policies"][0]["policy"] == "passive"
+    monkeypatch.setattr(sp, "evaluate_policy_v2", lambda *a, **k: pytest.fail("re-evaluated a finished controller"))
+    again = results.run_v2(["passive"], make_config(variant="v1"), tmp_path, resume=True, settings=settings, parts=("critical",))
+    assert again == json.loads(json.dumps(payload))

@@ -485,7 +485,8 @@ def test_cli_version_and_help(capsys):
         assert "``" not in text, command
     with pytest.raises(SystemExit):
         cli_main(["evaluate", "--help"])
-    assert "(default: critical,ramp,effort,robustness)" in " ".join(capsys.readouterr().out.split())
+    text = " ".join(capsys.readouterr().out.split())
+    assert "Protocol v2 (-v1 ids): critical, cost (default: both)" in text and "robustness (default: all)" in text
 
 
 def test_figures_name_units_and_label_every_line(tmp_path):
