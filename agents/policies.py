@@ -4,6 +4,7 @@
 ``reset(n, rows)`` and ``act(obs) -> actions``:
 
 - ``passive``, ``skyhook``, ``lqr``, ``lqg``: :mod:`bogie_agents.controllers`;
+- ``robust_damping``: :mod:`bogie_agents.robust` (the robust classical baseline for v1, docs/controllers.md);
 - ``pretrained``: the policy shipped in ``agents/pretrained/`` (see docs/results.md), checked
   against the SHA-256 sums in its ``SHA256SUMS`` before anything in it is loaded;
 - a path to a training run folder (``runs/NAME``) or to an SB3 ``.zip``: the saved model and,
@@ -30,8 +31,10 @@ from bogie_env.fileio import write_text_atomic
 from bogie_env.params import ConfigError
 
 from .controllers import LQGController, LQRController, PassiveController, SkyhookController
+from .robust import RobustDampingController
 
-CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": LQRController, "lqg": LQGController}
+CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": LQRController, "lqg": LQGController,
+             "robust_damping": RobustDampingController}
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 ALGORITHMS = ("ppo", "sac", "td3")
 NORMALISATION_FILE = "vecnormalize.json"

@@ -1,0 +1,557 @@
+"""A robust classical baseline for ``Bogie/Hunting-v1``: washed-out active yaw damping.
+
+The controller sees only the v1 observation (the sensors, the measured speed and the actuators'
+forces) and is scheduled on the measured speed only. It is one fixed design for every
+conicity from 0.025 to 0.3: no wheel-profile input.
+
+Structure (every signal in SI units before the gains; ``dt`` = the env step):
+
+- ``r_i``, the absolute yaw rate of wheelset i: the difference quotient of its measured yaw
+  relative to the frame plus the washed-out frame yaw rate (gyro);
+- ``r_b``, the washed-out frame yaw rate;
+- ``v_b``, the frame's lateral velocity: the leaky integral of the washed-out lateral
+  acceleration.
+
+Each washout is a first-order discrete high-pass of corner ``washout_hz``; the difference
+quotients are zero at DC by construction. So a constant observation (a steady curve: constant
+wheelset offsets, relative yaws, frame yaw rate ``V/R`` and unbalanced lateral acceleration;
+or a sensor bias) gives zero steady command: the controller damps hunting and leaves curving
+to the passive suspension.
+
+Commands (normalised, ``u = torque / max_force``): ``u = -G(V) s`` with ``s = [r_1, r_2, r_b,
+v_b]`` and G a gain matrix per design speed, interpolated linearly in the measured speed.
+The gains come from :func:`tune` (see docs/controllers.md): a multi-model search over the
+conicity grid and the speed range on the sampled design model (:func:`design_plant`: the
+bogie's linearisation, the actuators' lag, zero-order hold, the loop delay and the sensors'
+anti-alias filters), with the margin floors as constraints.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bogie_env.actuators import CHANNEL_NAMES, active_channels, force_matrix
+from bogie_env.dynamics import LATERAL_STATES, BogieModel, state_index
+from bogie_env.envs import task as T
+from bogie_env.envs.config import bogie_params
+from bogie_env.envs.sensors import SENSOR_NAMES, filter_weight
+from bogie_env.params import ConfigError
+from bogie_env.stability import KMH, linearize
+
+from .controllers import Controller, discretize
+
+LAT = list(LATERAL_STATES)
+N_LAT = len(LAT)
+#: The design signals, in order (SI units: rad/s, rad/s, rad/s, m/s).
+SIGNALS = ("wheelset1_yaw_rate", "wheelset2_yaw_rate", "frame_yaw_rate", "frame_lateral_velocity",
+           "wheelset1_lateral_rate", "wheelset2_lateral_rate")
+N_FILTER_STATES = 9
+N_SIG = len(SIGNALS)
+#: The conicity grid of the multi-model design and of the tests.
+DESIGN_CONICITIES = (0.025, 0.05, 0.1, 0.2, 0.3)
+
+
+# =============================================================================================
+# The sampled design model: bogie + actuator lag + ZOH + delay + sensor filters
+# =============================================================================================
+
+
+@dataclass
+class DesignPlant:
+    """``s+ = a s + b u``, ``y = c s`` from the normalised command u to the observation y (n_obs).
+
+    State ``[x_lat (16), F (n_act), u_{n-1}..u_{n-d} (d n_act), filtered sensors (7)]``.
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    speed_kmh: float
+    conicity: float
+
+
+def sensor_weights(env_config: dict) -> np.ndarray:
+    """Per-sample weight of each sensor channel's anti-alias filter (1: none), in observation order."""
+    sensors = env_config.get("sensors", {})
+    if not sensors.get("enabled", False):
+        return np.ones(len(SENSOR_NAMES))
+    return np.array([filter_weight(sensors[name]["bandwidth_hz"], env_config["dt"]) for name in SENSOR_NAMES])
+
+
+class DesignModel:
+    """The design model of one bogie (one conicity) at any speed: exact in speed through
+    :func:`bogie_env.stability.linearize` (J = J0 + J1/V + J2 V about the straight-track equilibrium)."""
+
+    def __init__(self, env_config: dict, conicity: float | None = None) -> None:
+        params = bogie_params(env_config)
+        if conicity is not None:
+            params = params.replace(lam=float(conicity))
+        self.conicity = params.lam
+        self.model = BogieModel(params)
+        self.lin = linearize(self.model)
+        self.config = env_config
+        self.active = active_channels(env_config["actuators"])
+        acts = [env_config["actuators"][CHANNEL_NAMES[k]] for k in self.active]
+        self.max_force = np.array([a["max_force"] for a in acts])
+        self.bandwidth = np.array([2 * math.pi * a["bandwidth_hz"] for a in acts])
+        delays = {a["delay_steps"] for a in acts}
+        if len(delays) != 1:
+            raise ValueError(f"robust: all active channels must share one delay_steps; got {sorted(delays)}")
+        self.delay = delays.pop()
+        self.dt = env_config["dt"]
+        self.include_actuators = bool(env_config["observation"]["include_actuators"])
+        self.weights = sensor_weights(env_config)
+
+    @property
+    def n_act(self) -> int:
+        return len(self.active)
+
+    @property
+    def n_obs(self) -> int:
+        return len(T.SENSORS) + 1 + (self.n_act if self.include_actuators else 0)
+
+    def continuous(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B) of ``[x_lat, F]`` with the normalised command as input, at ``speed`` (m/s)."""
+        n, m = N_LAT, self.n_act
+        b_lat = (self.model.input_matrix() @ force_matrix(self.active))[LAT]
+        a = np.zeros((n + m, n + m))
+        a[:n, :n] = self.lin.lateral_jacobian(speed)
+        a[:n, n:] = b_lat
+        a[n:, n:] = -np.diag(self.bandwidth)
+        b = np.zeros((n + m, m))
+        b[n:] = np.diag(self.bandwidth * self.max_force)
+        return a, b
+
+    def observation_matrix(self, a_cont: np.ndarray) -> np.ndarray:
+        """The clean observation (before the sensor filters) from ``[x_lat, F]``; the speed row is 0."""
+        p = self.model.params
+        idx = {name: LAT.index(state_index(name)) for name in ("y1", "y2", "yb", "psi1", "psi2", "psib", "dyb", "dpsib")}
+        c = np.zeros((self.n_obs, N_LAT + self.n_act))
+        c[T.SENSOR_FRAME_LATERAL_ACCEL] = a_cont[idx["dyb"]] / T.ACCEL_SCALE
+        c[T.SENSOR_FRAME_YAW_RATE, idx["dpsib"]] = 1.0 / T.YAW_RATE_SCALE
+        for row, ws, sign in ((T.SENSOR_WHEELSET1_LATERAL, "y1", -1.0), (T.SENSOR_WHEELSET2_LATERAL, "y2", 1.0)):
+            c[row, idx[ws]], c[row, idx["yb"]], c[row, idx["psib"]] = 1 / p.delta, -1 / p.delta, sign * p.L1 / p.delta
+        for row, ws in ((T.SENSOR_WHEELSET1_YAW, "psi1"), (T.SENSOR_WHEELSET2_YAW, "psi2")):
+            c[row, idx[ws]], c[row, idx["psib"]] = 1 / T.REL_YAW_SCALE, -1 / T.REL_YAW_SCALE
+        if self.include_actuators:
+            first = len(T.SENSORS) + 1
+            c[first:, N_LAT:] = np.diag(1.0 / self.max_force)
+        return c
+
+    def plant(self, speed_kmh: float) -> DesignPlant:
+        """The sampled plant at ``speed_kmh``."""
+        a_c, b_c = self.continuous(speed_kmh / KMH)
+        ad, bd = discretize(a_c, b_c, self.dt)
+        c0 = self.observation_matrix(a_c)
+        n, m, d = ad.shape[0], self.n_act, self.delay
+        n_d = n + d * m
+        a = np.zeros((n_d, n_d))
+        b = np.zeros((n_d, m))
+        a[:n, :n] = ad
+        if d == 0:
+            b[:n] = bd
+        else:  # shift register: the held command is the one of d steps ago
+            a[:n, n + (d - 1) * m:] = bd
+            b[n:n + m] = np.eye(m)
+            for i in range(1, d):
+                a[n + i * m:n + (i + 1) * m, n + (i - 1) * m:n + i * m] = np.eye(m)
+        c_d = np.zeros((c0.shape[0], n_d))
+        c_d[:, :n] = c0
+        # sensor filters: f_n = (1 - w) f_{n-1} + w C s_n; state f_{n-1}; y_n = f_n for the sensed rows
+        k = len(SENSOR_NAMES)
+        w = np.diag(self.weights)
+        a_all = np.zeros((n_d + k, n_d + k))
+        a_all[:n_d, :n_d] = a
+        a_all[n_d:, :n_d] = w @ c_d[:k]
+        a_all[n_d:, n_d:] = np.eye(k) - w
+        b_all = np.vstack([b, np.zeros((k, m))])
+        c_all = np.zeros((c_d.shape[0], n_d + k))
+        c_all[:, :n_d] = c_d
+        c_all[:k, :n_d] = w @ c_d[:k]
+        c_all[:k, n_d:] = np.eye(k) - w
+        return DesignPlant(a_all, b_all, c_all, speed_kmh, self.conicity)
+
+
+# =============================================================================================
+# The controller's filter bank: observation -> design signals
+# =============================================================================================
+
+
+@dataclass
+class FilterBank:
+    """``f+ = a f + b y``, ``s = c f + d y``: the design signals (SI) from the observation."""
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+
+
+def filter_bank(n_obs: int, dt: float, washout_hz: float, leak_hz: float) -> FilterBank:
+    """The washouts, difference quotients and the leaky integrator as one discrete state space.
+
+    States (SI units): previous gyro, washed-out gyro, previous relative yaw 1 and 2, previous
+    acceleration, washed-out acceleration, lateral velocity, previous wheelset lateral
+    displacement 1 and 2 (relative to the frame).
+    """
+    alpha = math.exp(-2 * math.pi * washout_hz * dt)  # high-pass: h+ = alpha (h + x - x_prev)
+    beta = math.exp(-2 * math.pi * leak_hz * dt)  # leaky integrator: v+ = beta v + dt h
+    g, acc = T.SENSOR_FRAME_YAW_RATE, T.SENSOR_FRAME_LATERAL_ACCEL
+    r1, r2 = T.SENSOR_WHEELSET1_YAW, T.SENSOR_WHEELSET2_YAW
+    l1, l2 = T.SENSOR_WHEELSET1_LATERAL, T.SENSOR_WHEELSET2_LATERAL
+    PG, HG, PR1, PR2, PA, HA, V, PL1, PL2 = range(N_FILTER_STATES)
+    a = np.zeros((N_FILTER_STATES, N_FILTER_STATES))
+    b = np.zeros((N_FILTER_STATES, n_obs))
+    # gyro washout: hg_new = alpha hg - alpha pg + alpha gyro
+    a[HG, HG], a[HG, PG], b[HG, g] = alpha, -alpha, alpha * T.YAW_RATE_SCALE
+    b[PG, g] = T.YAW_RATE_SCALE
+    b[PR1, r1] = b[PR2, r2] = T.REL_YAW_SCALE
+    b[PA, acc] = T.ACCEL_SCALE
+    a[HA, HA], a[HA, PA], b[HA, acc] = alpha, -alpha, alpha * T.ACCEL_SCALE
+    a[V, V] = beta  # v_new = beta v + dt ha_new
+    a[V] += dt * a[HA]
+    b[V] = dt * b[HA]
+    b[PL1, l1] = b[PL2, l2] = 1.0  # times delta: set by the caller's scale (observation units here)
+    c = np.zeros((N_SIG, N_FILTER_STATES))
+    d = np.zeros((N_SIG, n_obs))
+    for i, (prev, col) in enumerate(((PR1, r1), (PR2, r2))):
+        c[i, prev], d[i, col] = -1.0 / dt, T.REL_YAW_SCALE / dt
+        c[i] += a[HG]
+        d[i] += b[HG]
+    c[2], d[2] = a[HG], b[HG]
+    c[3], d[3] = a[V], b[V]
+    for i, (prev, col) in enumerate(((PL1, l1), (PL2, l2))):
+        c[4 + i, prev], d[4 + i, col] = -1.0 / dt, 1.0 / dt
+    return FilterBank(a, b, c, d)
+
+
+# =============================================================================================
+# The gain table and the controller
+# =============================================================================================
+
+#: The shipped gain table (written by ``python -m bogie_agents.robust``; see docs/controllers.md).
+GAINS_FILE = Path(__file__).resolve().parent / "robust_gains.json"
+
+
+def load_gains(path: str | Path = GAINS_FILE) -> dict:
+    """The gain table: design speeds (km/h), gains (n_speeds, 4 channels, N_SIG signals) in
+    normalised command per SI signal unit, the filter corners, and how it was made."""
+    data = json.loads(Path(path).read_text())
+    if tuple(data.get("signals", ())) != SIGNALS or tuple(data.get("channels", ())) != tuple(CHANNEL_NAMES):
+        raise ConfigError(f"{str(path)!r}: the gain table's signals/channels are not {SIGNALS} / {tuple(CHANNEL_NAMES)}")
+    speeds = np.asarray(data["speeds_kmh"], dtype=float)
+    gains = np.asarray(data["gains"], dtype=float)
+    if gains.shape != (speeds.size, len(CHANNEL_NAMES), N_SIG) or not np.all(np.diff(speeds) > 0):
+        raise ConfigError(f"{str(path)!r}: gains must be (n_speeds, {len(CHANNEL_NAMES)}, {N_SIG}) over increasing speeds")
+    if not (np.all(np.isfinite(gains)) and np.all(np.isfinite(speeds))):
+        raise ConfigError(f"{str(path)!r}: gains and speeds must be finite")
+    return {**data, "speeds_kmh": speeds, "gains": gains}
+
+
+class RobustDampingController(Controller):
+    """Washed-out active damping, multi-model tuned over conicity 0.025-0.3, scheduled on the
+    measured speed (module docstring; docs/controllers.md).
+
+    API (the residual-policy helper's base): ``RobustDampingController(env_config)``,
+    ``reset(n_envs, rows=None)``, ``act(obs) -> (n, n_active) float32 in [-1, 1]`` on batches
+    of v1 observations (each row keeps its own filter state; a row's first observation after
+    ``reset`` initialises its filters at rest, so sensor biases give no start transient),
+    ``controller_model(n_obs, speed_kmh, y0)`` for ``bogie margins``.
+    """
+
+    name = "robust_damping"
+    observation_type = "sensors"
+
+    def __init__(self, env_config: dict, gains: dict | str | Path | None = None) -> None:
+        super().__init__(env_config)
+        if env_config["observation"]["type"] != "sensors":
+            raise ConfigError(f"robust_damping needs observation.type = 'sensors'; got {env_config['observation']['type']!r}")
+        table = gains if isinstance(gains, dict) else load_gains(GAINS_FILE if gains is None else gains)
+        self.speeds_kmh = np.asarray(table["speeds_kmh"], dtype=float)
+        self.gains = np.asarray(table["gains"], dtype=float)[:, self.active, :]  # active channels only
+        self.washout_hz, self.leak_hz = float(table["washout_hz"]), float(table["leak_hz"])
+        self.n_obs = len(T.SENSORS) + 1 + (len(self.active) if env_config["observation"]["include_actuators"] else 0)
+        self.bank = filter_bank(self.n_obs, self.dt, self.washout_hz, self.leak_hz)
+        # steady filter state for a constant observation: (I - A)^-1 B
+        self.settle = np.linalg.solve(np.eye(N_FILTER_STATES) - self.bank.a, self.bank.b)
+        self.state = np.zeros((0, N_FILTER_STATES))
+        self.started = np.zeros(0, dtype=bool)
+
+    def gain_at(self, speed_kmh: np.ndarray) -> np.ndarray:
+        """(n, n_act, N_SIG): the gain table interpolated linearly in speed (held at its ends)."""
+        v = np.clip(np.asarray(speed_kmh, dtype=float), self.speeds_kmh[0], self.speeds_kmh[-1])
+        i1 = np.clip(np.searchsorted(self.speeds_kmh, v, side="right"), 1, len(self.speeds_kmh) - 1)
+        i0 = i1 - 1
+        w = ((v - self.speeds_kmh[i0]) / (self.speeds_kmh[i1] - self.speeds_kmh[i0]))[:, None, None]
+        return (1 - w) * self.gains[i0] + w * self.gains[i1]
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        if rows is None or self.state.shape[0] != n_envs:
+            self.state = np.zeros((n_envs, N_FILTER_STATES))
+            self.started = np.zeros(n_envs, dtype=bool)
+        else:
+            self.state[rows] = 0.0
+            self.started[rows] = False
+
+    def signals(self, obs: np.ndarray) -> np.ndarray:
+        """Advance the filters on one observation per row; the design signals (n, N_SIG), SI."""
+        y = np.asarray(obs, dtype=float)
+        if y.ndim != 2 or y.shape[1] != self.n_obs:
+            raise ConfigError(f"robust_damping takes observations of shape (n, {self.n_obs}); got {y.shape}")
+        if self.state.shape[0] != y.shape[0]:
+            self.reset(y.shape[0])
+        fresh = ~self.started
+        if np.any(fresh):
+            self.state[fresh] = y[fresh] @ self.settle.T
+            self.started[fresh] = True
+        s = self.state @ self.bank.c.T + y @ self.bank.d.T
+        self.state = self.state @ self.bank.a.T + y @ self.bank.b.T
+        return s
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        s = self.signals(obs)
+        gains = self.gain_at(self.speed_kmh(np.asarray(obs)))
+        return np.clip(-np.einsum("nij,nj->ni", gains, s), -1.0, 1.0).astype(np.float32)
+
+    def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray):
+        """The exact linear model at a fixed speed (``bogie_agents.margins.ControllerModel``):
+        the filter bank's state space with the interpolated gains on its output."""
+        from .margins import ControllerModel
+
+        if n_obs != self.n_obs:
+            raise ConfigError(f"robust_damping: n_obs = {n_obs}, the controller takes {self.n_obs}")
+        g = self.gain_at(np.array([speed_kmh]))[0]
+        return ControllerModel(self.bank.a.copy(), self.bank.b.copy(), -g @ self.bank.c, -g @ self.bank.d,
+                               "robust_damping: filter bank and interpolated gains (exact)")  # fmt: skip
+
+
+# =============================================================================================
+# The multi-model design
+# =============================================================================================
+
+#: Passive linear critical speeds of the v1 bogie by conicity (km/h; docs/environment.md), the
+#: base of the design's stability requirement per conicity.
+PASSIVE_CRITICAL_KMH = {0.025: 358.6, 0.05: 237.0, 0.1: 141.0, 0.2: 87.0, 0.3: 66.0}
+
+
+@dataclass
+class DesignSettings:
+    """What :func:`tune` asks of the gains at each design speed V.
+
+    The model set at V: every conicity of the grid whose required range reaches V (0.025: up to
+    ``top_kmh``; 0.05 and 0.1: passive critical speed + ``extra_kmh``; 0.2 and 0.3: + ``extra_high_kmh``),
+    each nominal, with every command scaled by each of ``gain_factors``, and with ``extra_delay_steps``
+    more steps of loop delay. The objective is the worst damping ratio of the oscillatory
+    closed-loop modes (above ``min_mode_hz``) over the set, with a penalty when a spectral radius
+    exceeds ``max_radius``.
+    """
+
+    speeds_kmh: tuple[float, ...] = tuple(float(v) for v in range(60, 601, 30))
+    top_kmh: float = 600.0
+    extra_kmh: float = 130.0
+    extra_high_kmh: float = 40.0
+    gain_factors: tuple[float, ...] = (1.0, 2.0, 0.7)
+    extra_delay_steps: int = 1
+    min_mode_hz: float = 0.8
+    max_radius: float = 0.998
+    washout_hz: float = 0.5
+    leak_hz: float = 0.3
+    max_evaluations: int = 2500
+    smoothness: float = 1e-4  # weight of |x - x_previous speed|^2 (scaled gains)
+    shrinkage: float = 1e-5  # weight of |x|^2
+    conicities: tuple[float, ...] = DESIGN_CONICITIES
+
+    def required(self, conicity: float, speed_kmh: float) -> bool:
+        top = self.top_kmh if conicity <= min(self.conicities) else PASSIVE_CRITICAL_KMH.get(conicity, 0.0) + (
+            self.extra_kmh if conicity <= 0.1 else self.extra_high_kmh)  # fmt: skip
+        return speed_kmh <= top
+
+
+#: Scale of each signal's gain in the search (normalised command per SI unit): skyhook-sized
+#: values, so that the search variables are O(1).
+GAIN_SCALE = np.array([20.0, 20.0, 20.0, 6.0, 0.1, 0.1])
+
+
+def closed_loop(plant: DesignPlant, bank: FilterBank, gains: np.ndarray, factor: float = 1.0) -> np.ndarray:
+    """The closed-loop state matrix of the design plant with ``u = -factor G s``."""
+    cc, dc = -factor * gains @ bank.c, -factor * gains @ bank.d
+    return np.block([[plant.a + plant.b @ dc @ plant.c, plant.b @ cc], [bank.b @ plant.c, bank.a]])
+
+
+def mode_score(a_cl: np.ndarray, dt: float, min_mode_hz: float, max_radius: float) -> float:
+    """Minus the least damping ratio of the oscillatory modes, plus a penalty on the spectral radius."""
+    z = np.linalg.eigvals(a_cl)
+    z = z[np.abs(z) > 1e-6]  # the delay and difference states sit at 0
+    s = np.log(z.astype(complex)) / dt
+    osc = np.abs(s.imag) > 2 * math.pi * min_mode_hz
+    zeta = -s.real[osc] / np.abs(s[osc]) if np.any(osc) else np.array([1.0])
+    return float(-np.min(zeta) + 100.0 * max(0.0, float(np.max(np.abs(z))) - max_radius))
+
+
+def tune(env_config: dict, settings: DesignSettings | None = None, progress=None) -> dict:
+    """The gain table by multi-model search (Nelder-Mead per design speed, warm-started from the
+    previous speed, from skyhook-like gains at the first); returns :func:`load_gains`'s dict."""
+    from scipy.optimize import minimize
+
+    from bogie_env.envs.config import merge_config
+
+    settings = settings or DesignSettings()
+    delayed = merge_config(env_config, {"actuators": {name: {"delay_steps": env_config["actuators"][name]["delay_steps"]
+                                                             + settings.extra_delay_steps} for name in CHANNEL_NAMES}})  # fmt: skip
+    nominal = {c: DesignModel(env_config, c) for c in settings.conicities}
+    late = {c: DesignModel(delayed, c) for c in settings.conicities}
+    n_obs = next(iter(nominal.values())).n_obs
+    bank = filter_bank(n_obs, env_config["dt"], settings.washout_hz, settings.leak_hz)
+    x = np.zeros((len(CHANNEL_NAMES), N_SIG))
+    for ch, sig in (("frame_lateral", 3), ("frame_yaw", 2), ("wheelset1_yaw", 0), ("wheelset2_yaw", 1)):
+        x[CHANNEL_NAMES.index(ch), sig] = 1.0
+    x = x.ravel()
+    table = []
+    for v in settings.speeds_kmh:
+        cs = [c for c in settings.conicities if settings.required(c, v)] or [min(settings.conicities)]
+        plants = [(nominal[c].plant(v), late[c].plant(v)) for c in cs]
+        previous = x.copy()
+
+        def objective(x: np.ndarray) -> float:
+            g = x.reshape(len(CHANNEL_NAMES), N_SIG) * GAIN_SCALE
+            worst = -math.inf
+            for p, p_late in plants:
+                for f in settings.gain_factors:
+                    worst = max(worst, mode_score(closed_loop(p, bank, g, f), env_config["dt"], settings.min_mode_hz, settings.max_radius))
+                if settings.extra_delay_steps:
+                    worst = max(worst, mode_score(closed_loop(p_late, bank, g), env_config["dt"], settings.min_mode_hz, settings.max_radius))
+            return worst + settings.smoothness * float(np.sum((x - previous) ** 2)) + settings.shrinkage * float(np.sum(x**2))
+
+        simplex = np.vstack([x] + [x + 0.3 * e for e in np.eye(x.size)])
+        result = minimize(objective, x, method="Nelder-Mead", options={"maxfev": settings.max_evaluations, "xatol": 1e-3,
+                                                                       "fatol": 1e-6, "adaptive": True, "initial_simplex": simplex})  # fmt: skip
+        x = result.x
+        table.append(x.reshape(len(CHANNEL_NAMES), N_SIG) * GAIN_SCALE)
+        if progress:
+            progress(f"{v:g} km/h: conicities {cs}, worst damping ratio {-result.fun:.4f}")
+    return {"signals": list(SIGNALS), "channels": list(CHANNEL_NAMES), "speeds_kmh": np.array(settings.speeds_kmh),
+            "gains": np.stack(table), "washout_hz": settings.washout_hz, "leak_hz": settings.leak_hz,
+            "design": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()}}  # fmt: skip
+
+
+def save_gains(table: dict, path: str | Path) -> None:
+    """Write a gain table as JSON (atomically)."""
+    from bogie_env.fileio import write_text_atomic
+
+    out = {**table, "speeds_kmh": [float(v) for v in table["speeds_kmh"]], "gains": np.asarray(table["gains"]).tolist()}
+    write_text_atomic(Path(path), json.dumps(out, indent=1))
+
+
+def linear_onsets(controller: "RobustDampingController", env_config: dict, conicities=DESIGN_CONICITIES,
+                  speeds_kmh=tuple(float(v) for v in range(50, 601, 5))) -> dict[float, dict]:  # fmt: skip
+    """Per conicity: the first speed of the grid where the design-model closed loop is unstable
+    (None: stable over the whole grid) and every unstable grid speed."""
+    out = {}
+    for c in conicities:
+        model = DesignModel(env_config, c)
+        unstable = []
+        for v in speeds_kmh:
+            k = controller.controller_model(model.n_obs, v, None)
+            p = model.plant(v)
+            a = np.block([[p.a + p.b @ k.d @ p.c, p.b @ k.c], [k.b @ p.c, k.a]])
+            if np.max(np.abs(np.linalg.eigvals(a))) >= 1.0:
+                unstable.append(float(v))
+        out[float(c)] = {"first_unstable_kmh": unstable[0] if unstable else None, "unstable_kmh": unstable}
+    return out
+
+
+@dataclass
+class _LoopPlant:
+    """The attributes of ``margins.PlantModel`` that ``margins.LinearLoop`` uses."""
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    dt: float
+    delay_steps: int
+    channel_names: list
+    n_act: int
+
+
+def design_margins(controller: "RobustDampingController", env_config: dict, speeds_kmh=(300.0, 350.0, 400.0, 450.0, 500.0),
+                   conicity: float | None = None) -> list[dict]:  # fmt: skip
+    """Per-loop margins (``bogie_agents.margins.loop_margins``, python-control) of the design
+    model with the sensor filters and the loop delay, at the given speeds."""
+    from .margins import LinearLoop, loop_margins
+
+    model = DesignModel(env_config, conicity)
+    names = [CHANNEL_NAMES[k] for k in model.active]
+    out = []
+    for v in speeds_kmh:
+        p = model.plant(v)
+        plant = _LoopPlant(p.a, p.b, p.c, model.dt, model.delay, names, model.n_act)
+        out.append(loop_margins(LinearLoop(plant, controller.controller_model(model.n_obs, v, None), v, np.zeros(model.n_act))))
+    return out
+
+
+def report(env_config: dict) -> str:
+    """The design figures: linear onsets by conicity and the margins at nominal conicity."""
+    controller = RobustDampingController(env_config)
+    lines = ["linear closed-loop onset by conicity (design model, 5 km/h grid 50-600 km/h):"]
+    for c, r in linear_onsets(controller, env_config).items():
+        bands = r["unstable_kmh"]
+        lines.append(f"  conicity {c:g}: first unstable {r['first_unstable_kmh'] or '> 600'} km/h"
+                     + (f" (unstable at {len(bands)} grid speeds, {bands[0]:g}-{bands[-1]:g})" if bands else ""))  # fmt: skip
+    lines.append("margins at nominal conicity, per loop (gain margin upper, delay margin beyond the loop delay):")
+    for row in design_margins(controller, env_config):
+        if not row["closed_loop_stable"]:
+            lines.append(f"  {row['speed_kmh']:g} km/h: unstable")
+            continue
+        cells = []
+        for name, m in row["loops"].items():
+            gm = "inf" if m["gain_margin"] is None else f"{m['gain_margin']:.2f}"
+            dm = "inf" if m["delay_margin_s"] is None else f"{1e3 * m['delay_margin_s']:.1f} ms"
+            cells.append(f"{name} GM {gm} DM {dm}")
+        disk = row["simultaneous_disk_margin"]
+        lines.append(f"  {row['speed_kmh']:g} km/h: " + "; ".join(cells)
+                     + ("" if disk is None else f"; all loops disk margin {disk['disk_margin']:.2f}"))  # fmt: skip
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m bogie_agents.robust design [--out FILE]``: design the gain table for the v1 env;
+    ``python -m bogie_agents.robust report``: its linear onsets by conicity and its margins."""
+    import argparse
+    import sys
+    import time
+
+    from bogie_env.envs.config import make_config
+
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("what", choices=("design", "report"))
+    parser.add_argument("--out", default=str(GAINS_FILE))
+    parser.add_argument("--variant", default="v1")
+    args = parser.parse_args(argv)
+    config = make_config({"randomize": {}}, variant=args.variant)
+    if args.what == "report":
+        print(report(config))
+        return
+    start = time.time()
+    settings = DesignSettings()
+    n = len(settings.speeds_kmh)
+    done = [0]
+
+    def progress(message: str) -> None:
+        done[0] += 1
+        elapsed = time.time() - start
+        print(f"[{done[0]}/{n}] {message}; {elapsed:.0f} s, about {elapsed / done[0] * (n - done[0]):.0f} s left",
+              file=sys.stderr, flush=True)  # fmt: skip
+
+    table = tune(config, settings, progress)
+    table["command"] = f"python -m bogie_agents.robust design --variant {args.variant}"
+    save_gains(table, args.out)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
