@@ -99,6 +99,67 @@ class PlantModel:
     filter_weight: np.ndarray = field(default_factory=lambda: np.zeros(0))  # weight of the new sample
     c_clean: np.ndarray | None = None  # the observation before the sensor filters
     filter_start: int = 0  # index of the first filter state
+    a_cont: np.ndarray | None = field(default=None, repr=False)  # continuous bogie + lag, for fractional delays
+    b_cont: np.ndarray | None = field(default=None, repr=False)
+
+    def with_delay_s(self, extra_s) -> "PlantModel":
+        """The plant with ``extra_s`` (scalar: every channel; or per channel) seconds more
+        command delay, not necessarily whole steps: the exact sampled model of a held command
+        that reaches the lag ``tau`` later, i.e. switches to the new command a fraction ``f`` of
+        the interval late (``x+ = Phi x + Gamma_a u_{n-k-1} + Gamma_b u_{n-k}``, ``Gamma_b`` the
+        ZOH integral over the last ``(1 - f) dt``, ``Gamma_a`` that over the first ``f dt``
+        carried to the end). Built from the plant of :func:`plant_model` (not from an extended one)."""
+        if self.a_cont is None:
+            raise ValueError("with_delay_s needs a plant from plant_model (its continuous part)")
+        from scipy.linalg import expm
+
+        extra = np.broadcast_to(np.asarray(extra_s, dtype=float), (self.n_act,))
+        if np.any(~np.isfinite(extra)) or np.any(extra < 0):
+            raise ValueError(f"extra_s = {extra_s!r} must be finite and >= 0")
+        dt, n, m = self.dt, self.a_cont.shape[0], self.n_act
+        total = np.array(self.delay_steps) + extra / dt  # steps
+        k = np.floor(total + 1e-9).astype(int)
+        f = np.where(total - k > 1e-9, total - k, 0.0)
+        lengths = k + (f > 0)
+        n_f = len(self.filter_rows)
+        n_all = n + int(lengths.sum()) + n_f
+        phi, _ = discretize(self.a_cont, self.b_cont, dt)
+        a = np.zeros((n_all, n_all))
+        b = np.zeros((n_all, m))
+        a[:n, :n] = phi
+
+        def zoh(t: float) -> tuple[np.ndarray, np.ndarray]:
+            """exp(A t) and the ZOH input integral over t."""
+            e_t, g_t = discretize(self.a_cont, self.b_cont, t) if t > 0 else (np.eye(n), np.zeros((n, m)))
+            return e_t, g_t
+
+        pos = n
+        for j in range(m):
+            e_late, g_late = zoh((1.0 - f[j]) * dt)
+            _, g_early = zoh(f[j] * dt)
+            terms = {int(k[j]): g_late[:, j]}  # u_{n-k}: the last (1 - f) dt
+            if f[j] > 0:
+                terms[int(k[j]) + 1] = e_late @ g_early[:, j]  # u_{n-k-1}: the first f dt
+            if lengths[j]:
+                b[pos, j] = 1.0
+                for i in range(1, lengths[j]):
+                    a[pos + i, pos + i - 1] = 1.0
+            for age, column in terms.items():
+                if age == 0:
+                    b[:n, j] += column
+                else:
+                    a[:n, pos + age - 1] += column
+            pos += int(lengths[j])
+        # the observation and the filters: core and filter columns of the original plant
+        old_f = slice(self.filter_start, self.filter_start + n_f)
+        c = np.zeros((self.c.shape[0], n_all))
+        c[:, :n] = self.c[:, :n]
+        c[:, pos:pos + n_f] = self.c[:, old_f]
+        c_clean = np.zeros_like(c)
+        c_clean[:, :n] = self.c_clean[:, :n]
+        for i, row in enumerate(self.filter_rows):
+            a[pos + i] = c[row]
+        return replace(self, a=a, b=b, c=c, c_clean=c_clean, filter_start=pos, delay_steps=tuple(int(v) for v in k))
 
     def settled_state(self, dx: np.ndarray, dforce: np.ndarray | None = None) -> np.ndarray:
         """The plant state for a deviation ``dx`` (20,) of the bogie and ``dforce`` of the
@@ -297,7 +358,7 @@ def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = No
         a[n + n_reg + i] = c[row]
     return PlantModel(a, b, c, config["dt"], speed, np.asarray(x_eq, float), force_eq, active, max_force, bandwidth, delays,
                       config["observation"]["type"], bool(config["observation"]["include_actuators"]), model,
-                      tuple(rows), np.asarray(weights), c_clean, n + n_reg)  # fmt: skip
+                      tuple(rows), np.asarray(weights), c_clean, n + n_reg, a_c, b_c)  # fmt: skip
 
 
 # =============================================================================================
@@ -571,6 +632,42 @@ class LinearLoop:
         of command delay."""
         return replace(self, plant=self.plant.with_extra_delay(extra_steps))
 
+    def with_delay_s(self, extra_s) -> "LinearLoop":
+        """The loop with ``extra_s`` seconds more command delay (not necessarily whole steps;
+        :meth:`PlantModel.with_delay_s`)."""
+        return replace(self, plant=self.plant.with_delay_s(extra_s))
+
+    def delay_margin_by_eigenvalues(self, channel: int | None = None, tol_s: float = 1e-5, max_steps: int = 30,
+                                    whole_steps: int | None | str = "compute") -> float | None:  # fmt: skip
+        """The extra delay (s; in ``channel`` alone, or every channel for None) at which the
+        closed loop first loses stability, from the closed-loop eigenvalues of the exact
+        sampled model with a fractional delay: whole steps first
+        (:meth:`tolerated_extra_steps`), then bisection within the step that loses stability
+        (to ``tol_s``). None: stable up to ``max_steps`` whole steps. ``whole_steps``: the
+        result of :meth:`tolerated_extra_steps` if already known."""
+        k = self.tolerated_extra_steps(channel, max_steps) if whole_steps == "compute" else whole_steps
+        if k is None:
+            return None
+        if k < 0:
+            return 0.0
+
+        def extra(tau: float) -> np.ndarray:
+            e = np.zeros(self.plant.n_act)
+            if channel is None:
+                e[:] = tau
+            else:
+                e[channel] = tau
+            return e
+
+        lo, hi = k * self.dt, (k + 1) * self.dt
+        while hi - lo > tol_s:
+            mid = 0.5 * (lo + hi)
+            if np.max(np.abs(self.with_delay_s(extra(mid)).eigenvalues())) < 1.0:
+                lo = mid
+            else:
+                hi = mid
+        return 0.5 * (lo + hi)
+
     def tolerated_extra_steps(self, channel: int | None = None, max_steps: int = 30) -> int | None:
         """The most whole extra steps of delay (in ``channel`` only, or in every channel at once
         for None) for which the closed-loop matrix stays stable, every count from 0 up to it
@@ -698,8 +795,12 @@ def loop_margins(loop: LinearLoop, omega: np.ndarray | None = None) -> dict[str,
     steps of delay in that loop alone for which the closed-loop matrix stays stable (None:
     stable up to :data:`MAX_EXTRA_DELAY_STEPS`); it agrees with ``delay_margin_s`` as
     ``floor(delay_margin_s / dt)`` (a whole-step delay ``z^-k`` is exactly the phase lag
-    ``omega k dt`` of the sampled loop). ``all_loops_extra_delay_steps``: the same with every
-    channel delayed at once (a slower loop computer).
+    ``omega k dt`` of the sampled loop). ``delay_margin_sampled_s``: the extra delay at which the
+    exact sampled model with a fractional delay (:meth:`PlantModel.with_delay_s`) loses
+    stability, by its eigenvalues: between whole steps a delayed held command is not a pure
+    phase lag, and this is the exact figure (same whole step as ``delay_margin_s``).
+    ``all_loops_extra_delay_steps`` / ``all_loops_delay_margin_s``: the same with every channel
+    delayed at once (a slower loop computer).
     """
     import control
 
@@ -721,15 +822,19 @@ def loop_margins(loop: LinearLoop, omega: np.ndarray | None = None) -> dict[str,
     if not stable:
         out["loops"] = {name: None for name in names}
         out["simultaneous_disk_margin"] = None
-        out["gain_margin"] = out["delay_margin_s"] = out["all_loops_extra_delay_steps"] = None
+        out["gain_margin"] = out["delay_margin_s"] = out["all_loops_extra_delay_steps"] = out["all_loops_delay_margin_s"] = None
         out["gain_margin_lower"] = None
         return out
     for k, name in enumerate(names):
         m = siso_margins(loop.broken_loop(k), omega)
         m["existing_delay_s"] = delays_s[k]
         m["delay_margin_steps"] = loop.tolerated_extra_steps(k, MAX_EXTRA_DELAY_STEPS)
+        m["delay_margin_sampled_s"] = loop.delay_margin_by_eigenvalues(k, max_steps=MAX_EXTRA_DELAY_STEPS,
+                                                                       whole_steps=m["delay_margin_steps"])  # fmt: skip
         out["loops"][name] = m
     out["all_loops_extra_delay_steps"] = loop.tolerated_extra_steps(None, MAX_EXTRA_DELAY_STEPS)
+    out["all_loops_delay_margin_s"] = loop.delay_margin_by_eigenvalues(None, max_steps=MAX_EXTRA_DELAY_STEPS,
+                                                                       whole_steps=out["all_loops_extra_delay_steps"])  # fmt: skip
     try:
         dm, dgm, dpm = control.disk_margins(loop.input_loop(), omega, skew=0.0)
         out["simultaneous_disk_margin"] = {"disk_margin": _none_if_inf(float(dm)), "disk_gain_margin_db": _none_if_inf(float(dgm)),
@@ -765,6 +870,7 @@ def summarise(per_speed: list[dict[str, Any]], low_kmh: float, high_kmh: float) 
         "gain_margin_lower": _worst(rows, "gain_margin_lower", max) if ok else None,
         "delay_margin_s": _worst(rows, "delay_margin_s") if ok else None,
         "all_loops_extra_delay_steps": _worst(rows, "all_loops_extra_delay_steps") if ok else None,
+        "all_loops_delay_margin_s": _worst(rows, "all_loops_delay_margin_s") if ok else None,
     }
 
 
@@ -804,6 +910,7 @@ def margins_table(policy, env_config: dict, speeds_kmh=DEFAULT_SPEEDS_KMH, conic
         "gain_margin_lower": worst("gain_margin_lower", max),
         "delay_margin_s": worst("delay_margin_s"),
         "all_loops_extra_delay_steps": worst("all_loops_extra_delay_steps"),
+        "all_loops_delay_margin_s": worst("all_loops_delay_margin_s"),
         "unstable_at_kmh": unstable,
         "summary": summarise(per_speed, *SUMMARY_SPEEDS_KMH),
         "by_speed": per_speed,
@@ -812,6 +919,10 @@ def margins_table(policy, env_config: dict, speeds_kmh=DEFAULT_SPEEDS_KMH, conic
 
 def _fmt(value: float | None, spec: str) -> str:
     return "inf" if value is None else format(value, spec)
+
+
+def _ms(value: float | None) -> str:
+    return f">{MAX_EXTRA_DELAY_STEPS}st" if value is None else format(value * 1e3, ".1f")
 
 
 def _steps(value: int | None) -> str:
@@ -824,7 +935,7 @@ def format_table(table: dict[str, Any]) -> str:
     crossover; then the worst case and the 300-450 km/h summary."""
     lines = [f"conicity {table['conicity']:g}, delay steps {table['delay_steps']}, sensor filters "
              f"{'none' if not table['sensor_filters_hz'] else sorted(set(table['sensor_filters_hz'].values()))} Hz",
-             f"{'km/h':>6} {'loop':<14} {'GM':>14} {'PM deg':>8} {'fc Hz':>6} {'DM ms':>8} {'steps':>5} {'disk':>6}"]  # fmt: skip
+             f"{'km/h':>6} {'loop':<14} {'GM':>14} {'PM deg':>8} {'fc Hz':>6} {'DM ms':>8} {'exact':>8} {'steps':>5} {'disk':>6}"]  # fmt: skip
     for row in table["by_speed"]:
         if not row["closed_loop_stable"]:
             lines.append(f"{row['speed_kmh']:>6g} {'(unstable: growth ' + format(row['closed_loop_growth_rate_per_s'], '.2f') + ' 1/s)':<40}")
@@ -833,10 +944,11 @@ def format_table(table: dict[str, Any]) -> str:
             gm = f"{m['gain_margin_lower']:.3g}-{_fmt(m['gain_margin'], '.3g')}"
             dm = None if m["delay_margin_s"] is None else m["delay_margin_s"] * 1e3
             lines.append(f"{row['speed_kmh']:>6g} {name:<14} {gm:>14} {_fmt(m['phase_margin_deg'], '.1f'):>8} "
-                         f"{_fmt(m['gain_crossover_hz'], '.2f'):>6} {_fmt(dm, '.1f'):>8} {_steps(m['delay_margin_steps']):>5} "
+                         f"{_fmt(m['gain_crossover_hz'], '.2f'):>6} {_fmt(dm, '.1f'):>8} {_ms(m['delay_margin_sampled_s']):>8} "
+                         f"{_steps(m['delay_margin_steps']):>5} "
                          f"{_fmt(m['disk_margin'], '.2f'):>6}")  # fmt: skip
         sim = row["simultaneous_disk_margin"] or {"disk_margin": math.nan}  # NaN: slycot missing
-        lines.append(f"{row['speed_kmh']:>6g} {'all loops':<14} {'':>14} {'':>8} {'':>6} {'':>8} "
+        lines.append(f"{row['speed_kmh']:>6g} {'all loops':<14} {'':>14} {'':>8} {'':>6} {'':>8} {_ms(row['all_loops_delay_margin_s']):>8} "
                      f"{_steps(row['all_loops_extra_delay_steps']):>5} {_fmt(sim['disk_margin'], '.2f'):>6}")  # fmt: skip
     dm = table["delay_margin_s"]
     if table["unstable_at_kmh"]:
@@ -844,7 +956,7 @@ def format_table(table: dict[str, Any]) -> str:
     else:
         lines.append(f"worst case: gain margin {_fmt(table['gain_margin'], '.3g')}, delay margin "
                      f"{_fmt(None if dm is None else dm * 1e3, '.1f')} ms beyond the existing delay, "
-                     f"all loops {_steps(table['all_loops_extra_delay_steps'])} extra steps")  # fmt: skip
+                     f"all loops {_steps(table['all_loops_extra_delay_steps'])} extra steps ({_ms(table['all_loops_delay_margin_s'])} ms)")  # fmt: skip
     su = table["summary"]
     lo, hi = su["speed_range_kmh"]
     if not su["speeds_kmh"]:
@@ -856,7 +968,7 @@ def format_table(table: dict[str, Any]) -> str:
         lines.append(f"summary {lo:g}-{hi:g} km/h: stable; gain margin {_fmt(su['gain_margin'], '.3g')} "
                      f"(lower {_fmt(su['gain_margin_lower'], '.3g')}), delay margin "
                      f"{_fmt(None if dm is None else dm * 1e3, '.1f')} ms, all loops "
-                     f"{_steps(su['all_loops_extra_delay_steps'])} extra steps")  # fmt: skip
+                     f"{_steps(su['all_loops_extra_delay_steps'])} extra steps ({_ms(su['all_loops_delay_margin_s'])} ms)")  # fmt: skip
     return "\n".join(lines)
 
 

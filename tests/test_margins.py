@@ -348,6 +348,7 @@ def test_v1_delay_margin_matches_closed_loop_eigenvalues(v1_config, v1_lqg, v1_l
             continue
         k = int(math.floor(m["delay_margin_s"] / dt))
         assert m["delay_margin_steps"] == k, name
+        assert k * dt <= m["delay_margin_sampled_s"] < (k + 1) * dt, name  # the exact figure, same whole step
         delays = np.ones(4, dtype=int)
         delays[j] = 1 + k
         assert stable_with(delays), name
@@ -358,6 +359,33 @@ def test_v1_delay_margin_matches_closed_loop_eigenvalues(v1_config, v1_lqg, v1_l
     k_all = margins["all_loops_extra_delay_steps"]
     assert k_all is not None and k_all <= min(m["delay_margin_steps"] for m in margins["loops"].values() if m["delay_margin_steps"] is not None)
     assert stable_with(np.full(4, 1 + k_all)) and not stable_with(np.full(4, 2 + k_all))
+    assert k_all * dt <= margins["all_loops_delay_margin_s"] < (k_all + 1) * dt
+
+
+def test_fractional_delay_model_matches_whole_steps_and_simulation(v1_config, v1_lqg, v1_lqg_loop, v1_lqg_margins):
+    """The exact sampled model of a fractional delay (PlantModel.with_delay_s): at whole steps
+    the shift register's eigenvalues; between them the nonlinear simulation's growth rates
+    (simulate_loop applies the delay to 1 ms), around the frame-lateral loop's margin, where the
+    phase-lag account (delay_margin_s) is 9 % short of it."""
+    loop = v1_lqg_loop
+    for k in (1, 2):
+        np.testing.assert_allclose(np.sort(np.abs(loop.with_delay_s(k * loop.dt).eigenvalues())),
+                                   np.sort(np.abs(loop.with_extra_delay(k).eigenvalues())), atol=1e-6)  # fmt: skip
+    j = loop.plant.channel_names.index("frame_lateral")
+    taus = np.array([0.034, 0.037, 0.039])
+    extra = np.zeros((taus.size, 4))
+    extra[:, j] = taus
+    predicted = np.array([loop.with_delay_s(e).growth_rate() for e in extra])
+    assert predicted[0] < 0 < predicted[-1]
+    x0 = np.repeat(loop.plant.x_eq[None], taus.size, axis=0)
+    x0[:, 0] += 1e-8
+    out = M.simulate_loop(v1_lqg, v1_config, SPEED_KMH, x0, loop.plant.force_eq, loop.u_eq, 8.0, extra_delay_s=extra,
+                          substeps=10, model=loop.plant.model)  # fmt: skip
+    dev = M.deviation(out["x"], loop.plant.x_eq)
+    measured = np.array([M.envelope_growth_rate(out["t"], dev[:, r], floor=1e-10, skip_s=1.0) for r in range(taus.size)])
+    np.testing.assert_allclose(measured, predicted, rtol=0.05, atol=0.02)
+    sampled = v1_lqg_margins["loops"]["frame_lateral"]["delay_margin_sampled_s"]
+    assert taus[1] < sampled < taus[2]
 
 
 def test_v1_passive_growth_and_frequency_match_the_env(v1_config):
