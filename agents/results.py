@@ -215,7 +215,8 @@ def v2_speed(entry: dict | None) -> str:
     if entry["bound"].startswith("at most"):
         return f"≤ {value:g}"
     spread = entry.get("spread_kmh", {})
-    return f"{value:.0f} ({spread.get('median', value):.0f}-{spread.get('max', value):.0f})" if spread else f"{value:.0f}"
+    mark = " †" if entry.get("fails_below_kmh") else ""
+    return (f"{value:.0f} ({spread.get('median', value):.0f}-{spread.get('max', value):.0f})" if spread else f"{value:.0f}") + mark
 
 
 def _at_ceiling(entry: dict | None) -> bool:
@@ -265,6 +266,7 @@ def v2_table(results: list[dict]) -> str:
     if search:
         notes.append(f"Search {search['floor_kmh']:g}-{search['ceiling_kmh']:g} km/h ('≥' at the ceiling, '≤' at the floor), "
                      f"{search['seeds']} seeds, bisection to {search['tol_kmh']:g} km/h (docs/results.md, protocol v2).")  # fmt: skip
+    notes.append("† a seed also fails at a grid speed below this value (fails_below_kmh in results.json).")
     if dropped:
         notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
     return "\n".join(lines + notes) + "\n"

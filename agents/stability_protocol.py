@@ -31,10 +31,12 @@ i.e. a flange impact as on a hunting cycle), the highest speed that passes, foun
 geometric grid from ``floor_kmh`` to ``ceiling_kmh`` and then by per-row bisection to
 ``tol_kmh``. All (column, seed, speed) rows of a round run in one batched
 :class:`~bogie_env.envs.task.HuntingTask` (one more for the columns with a different loop
-delay). Each seed's critical speed is taken below its *lowest* failing grid speed: stability
-is assumed to be lost once as the speed rises (a pass above a failure is counted in
-``non_monotonic_seeds``). The column's value is the lowest per-seed value (the highest speed
-that all seeds pass), reported with the spread (min / median / max).
+delay). Each seed's critical speed is the upper end of its highest passing speed range on
+the grid, bisected: the stability boundary that hunting sets. Grid speeds below it where the
+seed fails (e.g. a controller designed for 100-700 km/h misbehaving at 40 km/h) are reported
+in ``fails_below_kmh`` and counted in ``non_monotonic_seeds``; they do not lower the value.
+The column's value is the lowest per-seed value (under this definition, the highest speed up
+to which every seed's top boundary reaches), reported with the spread (min / median / max).
 
 **Columns**: ``nominal`` (v1 defaults, conicity 0.025, no per-episode randomisation), the
 conicity grid (``by_conicity``), degraded bogies (``degraded``: primary longitudinal stiffness
@@ -500,14 +502,17 @@ def search(runner: Runner, cases: list[Case]) -> dict[str, np.ndarray]:
     result = runner.run([cases[i] for i, _ in rows], np.array([grid[j] for _, j in rows]), "coarse grid",
                         remaining_rows=m * rounds_left)  # fmt: skip
     passed = result.passed.reshape(m, grid.size)
-    first_fail = np.where(passed.all(axis=1), grid.size, np.argmin(passed, axis=1))
-    non_monotonic = np.array([bool(passed[i, first_fail[i]:].any()) for i in range(m)])
-    lo = np.where(first_fail > 0, grid[np.maximum(first_fail - 1, 0)], np.nan)
-    hi = np.where(first_fail < grid.size, grid[np.minimum(first_fail, grid.size - 1)], np.nan)
+    # the upper end of each case's highest passing range of the grid
+    top_pass = np.where(passed.any(axis=1), grid.size - 1 - np.argmax(passed[:, ::-1], axis=1), -1)
+    below = [[float(grid[j]) for j in range(max(top_pass[i], 0)) if not passed[i, j]] for i in range(m)]
+    non_monotonic = np.array([bool(b) for b in below])
+    lo = np.where(top_pass >= 0, grid[np.maximum(top_pass, 0)], np.nan)
+    hi = np.where(top_pass < grid.size - 1, grid[np.minimum(top_pass + 1, grid.size - 1)], np.nan)
+    first_fail = top_pass + 1  # the grid index where the search brackets the boundary
     failed_by: list[list[str]] = [[] for _ in range(m)]
     sample = {"f0_hz": np.full(m, np.nan), "sum_y_rms_n": np.full(m, np.nan), "frame_accel_rms": np.full(m, np.nan),
               "flange_time": np.full(m, np.nan)}  # fmt: skip
-    for i in range(m):  # what the first failing speed fails by
+    for i in range(m):  # what the failing speed above the boundary fails by
         if first_fail[i] < grid.size:
             r = i * grid.size + first_fail[i]
             failed_by[i] = result.failed_by(r, s.flange_time_limit)
@@ -533,7 +538,7 @@ def search(runner: Runner, cases: list[Case]) -> dict[str, np.ndarray]:
     critical = np.where(np.isnan(lo), grid[0], lo)
     bound = np.where(first_fail == grid.size, "at_least", np.where(first_fail == 0, "at_most", "bisected"))
     return {"critical_kmh": critical, "bound": bound, "non_monotonic": non_monotonic, "failed_by": failed_by,
-            "at_failure": sample}  # fmt: skip
+            "at_failure": sample, "fails_below": below}  # fmt: skip
 
 
 def column_result(cases: list[Case], found: dict[str, Any], idx: np.ndarray, settings: Settings) -> dict[str, Any]:
@@ -555,6 +560,9 @@ def column_result(cases: list[Case], found: dict[str, Any], idx: np.ndarray, set
         "spread_kmh": {"min": round(float(crit.min()), 1), "median": round(float(np.median(crit)), 1),
                        "max": round(float(crit.max()), 1)},
         "non_monotonic_seeds": int(found["non_monotonic"][idx].sum()),
+        # grid speeds below a seed's critical speed where it failed (they do not lower it)
+        "fails_below_kmh": {str(cases[i].seed): [round(v, 1) for v in found["fails_below"][i]]
+                            for i in idx if found["fails_below"][i]},
         "worst_seed_fails_by": found["failed_by"][idx[worst]],
     }  # fmt: skip
     at = found["at_failure"]
@@ -642,8 +650,9 @@ def critical_part(ctx: PartContext) -> dict[str, Any]:
         "search": {"floor_kmh": s.floor_kmh, "ceiling_kmh": s.ceiling_kmh, "grid_kmh": [round(v, 1) for v in s.grid_kmh()],
                    "tol_kmh": s.tol_kmh, "duration_s": s.duration_s, "seeds": s.seeds,
                    "perturbation_m": s.perturbation_m,
-                   "assumption": "stability is lost once as the speed rises: a seed's critical speed lies below its "
-                                 "lowest failing grid speed"},
+                   "definition": "a seed's critical speed is the upper end of its highest passing speed range on "
+                                 "the grid, bisected; grid speeds below it where the seed fails are reported in "
+                                 "fails_below_kmh and do not lower it"},
         "criterion": criterion_text(s, params.Wpa, params.mb),
         "told": "model-based controllers are designed for the column's conicity, rounded to the nearest of "
                 f"{', '.join(f'{c:g}' for c in s.conicities)}; nothing about degradation, faults or extra delay",

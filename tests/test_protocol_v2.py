@@ -105,30 +105,67 @@ def test_blowup_and_non_finite_fail():
     assert not _assess(h).passed[0] and _assess(h).failed_by(0, 0.01) == ["blowup"]
 
 
+class FakeRunner:
+    """A runner whose pass/fail is a given function of (seed, speed): tests the search alone."""
+
+    def __init__(self, passes, settings):
+        self.passes, self.settings, self.rows = passes, settings, 0
+
+    def run(self, cases, speeds, what, remaining_rows):
+        self.rows += len(cases)
+        ok = np.array([self.passes(c.seed, v) for c, v in zip(cases, speeds)])
+        n = len(cases)
+        return sp.Assessment(ok, np.zeros(n), np.zeros(n), np.where(ok, 0.0, 0.5), np.full(n, 3.0), np.zeros(n, bool),
+                             np.full(n, 30e3), 5.8)  # fmt: skip
+
+
+def test_search_bisects_each_row_to_its_own_boundary_and_reports_failures_below():
+    settings = sp.Settings(tol_kmh=1.0)
+    boundary = {0: 357.3, 1: 212.9, 2: 1000.0, 3: 0.0, 4: 301.0}
+    passes = lambda seed, v: (v <= boundary[seed]) and not (seed == 4 and v < 45)  # seed 4 fails at low speed too
+    cases = [sp.Case("c", seed, {}, 0.025) for seed in boundary]
+    runner = FakeRunner(passes, settings)
+    found = sp.search(runner, cases)
+    crit = found["critical_kmh"]
+    for i in (0, 1, 4):
+        assert boundary[i] - 1.0 <= crit[i] <= boundary[i], (i, crit[i])
+    assert list(found["bound"]) == ["bisected", "bisected", "at_least", "at_most", "bisected"]
+    assert crit[2] == settings.ceiling_kmh and crit[3] == settings.floor_kmh
+    assert found["fails_below"][4] == [40.0] and not any(found["fails_below"][:4])
+    grid = settings.grid_kmh()
+    assert runner.rows < len(cases) * (grid.size + 10)  # one row per case and round
+
+
 # ---- closed loop ------------------------------------------------------------------------------------
-def test_passive_critical_speed_at_conicity_01_is_near_the_linear_one():
+SETTINGS_01 = dict(columns=("conicity:0.1",), duration_s=10.0, tol_kmh=3.0)
+
+
+@pytest.fixture(scope="module")
+def passive_01() -> dict:
+    """Passive at conicity 0.1 under the tiny settings (shared by two tests)."""
+    return sp.evaluate_policy_v2("passive", make_config(variant="v1"), tiny(**SETTINGS_01), parts=("critical",))
+
+
+def test_passive_critical_speed_at_conicity_01_is_near_the_linear_one(passive_01):
     """Passive, conicity 0.1: within 15 km/h of the linear critical speed (141 km/h; the large
     initial perturbation and the rough track may lower it)."""
-    v1 = make_config(variant="v1")
     linear = critical_speed(BogieModel(load_params(None).replace(lam=0.1))).speed_kmh
-    result = sp.evaluate_policy_v2("passive", v1, tiny(columns=("conicity:0.1",)), parts=("critical",))
-    entry = result["by_conicity"]["0.1"]
+    entry = passive_01["by_conicity"]["0.1"]
     assert entry["bound"].startswith("bisection")
     assert linear - 15 <= entry["kmh"] <= linear + 5, (entry, linear)
     assert entry["worst_seed_fails_by"]  # what the failing speed failed by is reported
 
 
-def test_a_destabilising_controller_fails_lower_than_passive():
+def test_a_destabilising_controller_fails_lower_than_passive(passive_01):
     """Negative skyhook damping (positive velocity feedback) lowers the critical speed."""
-    v1 = make_config(variant="v1")
-    settings = tiny(columns=("conicity:0.1",), duration_s=10.0, tol_kmh=5.0)
-    passive = sp.evaluate_policy_v2("passive", v1, settings, parts=("critical",))["by_conicity"]["0.1"]["kmh"]
-    bad = sp.evaluate_policy_v2(lambda cfg: SkyhookController(cfg, c_lateral=-6e4, c_yaw=-6e5, c_wheelset=-6e5), v1, settings,
-                                parts=("critical",), label="anti-skyhook")["by_conicity"]["0.1"]["kmh"]  # fmt: skip
+    passive = passive_01["by_conicity"]["0.1"]["kmh"]
+    bad = sp.evaluate_policy_v2(lambda cfg: SkyhookController(cfg, c_lateral=-6e4, c_yaw=-6e5, c_wheelset=-6e5),
+                                make_config(variant="v1"), tiny(**SETTINGS_01), parts=("critical",),
+                                label="anti-skyhook")["by_conicity"]["0.1"]["kmh"]  # fmt: skip
     assert bad < passive - 10, (bad, passive)
 
 
-def test_json_keys_and_determinism():
+def test_json_keys():
     v1 = make_config(variant="v1")
     settings = tiny(seeds=1, grid_ratio=2.0, floor_kmh=60.0, ceiling_kmh=480.0, tol_kmh=60.0, duration_s=6.0, transient_s=2.0,
                     worst_case_draws=1, cost_conicities=(0.025,), cost_duration_s=4.0)  # fmt: skip
@@ -147,10 +184,15 @@ def test_json_keys_and_determinism():
     assert set(cost["rms_force"]) == {"frame_lateral", "frame_yaw", "wheelset1_yaw", "wheelset2_yaw"}
     assert all(v == 0.0 for v in cost["rms_force"].values())  # passive: zero command
     assert cost["frame_accel_rms_m_per_s2"] > 0
-    settings.columns = ("conicity:0.1", "worst_case")
-    first = sp.evaluate_policy_v2("passive", v1, settings, parts=("critical",))
-    again = sp.evaluate_policy_v2("passive", v1, settings, parts=("critical",))
-    assert json.dumps(again, sort_keys=True) == json.dumps(first, sort_keys=True)  # seeds give identical results
+
+
+@pytest.mark.slow
+def test_seeds_give_identical_results():
+    v1 = make_config(variant="v1")
+    settings = tiny(seeds=1, columns=("conicity:0.1", "worst_case"), worst_case_draws=1, duration_s=8.0)
+    first = sp.evaluate_policy_v2("lqg", v1, settings, parts=("critical", "cost"))
+    again = sp.evaluate_policy_v2("lqg", v1, settings, parts=("critical", "cost"))
+    assert json.dumps(again, sort_keys=True) == json.dumps(first, sort_keys=True)
 
 
 def test_told_conicity_and_registry():
@@ -181,8 +223,9 @@ def test_cli_picks_the_protocol_by_env_version(capsys, monkeypatch):
     payload = json.loads(captured.out)  # stdout is the JSON alone; progress goes to stderr
     assert payload["env_id"] == "Bogie/Hunting-v1" and payload["env_version"] == "v1" and payload["protocol_version"] == 2
     assert "0.1" in payload["policies"][0]["by_conicity"]
-    assert cli_main(["evaluate", "--env", "Bogie/Hunting-v0", "--policy", "passive", "--parts", "ramp", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["protocol_version"] == 1
+    # a -v0 id runs protocol v1, whose parts differ (nothing is run for a bad part)
+    assert cli_main(["evaluate", "--env", "Bogie/Hunting-v0", "--policy", "passive", "--parts", "cost"]) == 2
+    assert "allowed parts are critical, effort, margins, ramp, robustness" in capsys.readouterr().err
 
 
 def _entry(kmh: float, bound: str = "bisection to 2 km/h") -> dict:
