@@ -66,8 +66,10 @@ def merge(unit_results: list[dict]) -> dict:
 def _fingerprint(spec: str) -> list:
     """What identifies a saved controller's files (size and time of change), for the store key."""
     path = PRETRAINED_DIR if spec == "pretrained" else Path(spec)
-    files = sorted(path.iterdir()) if path.is_dir() else [path] if path.is_file() else []
-    return [[f.name, f.stat().st_size, f.stat().st_mtime_ns] for f in files if f.is_file()]
+    files = sorted(path.rglob("*") if spec == "pretrained" else path.iterdir()) if path.is_dir() else \
+        [path] if path.is_file() else []  # fmt: skip
+    return [[str(f.relative_to(path)) if path.is_dir() else f.name, f.stat().st_size, f.stat().st_mtime_ns]
+            for f in files if f.is_file()]  # fmt: skip
 
 
 def definition(specs: list[str], env_config: dict, settings: ProtocolSettings) -> dict:

@@ -5,8 +5,12 @@
 
 - ``passive``, ``skyhook``, ``lqr``, ``lqg``: :mod:`bogie_agents.controllers`;
 - ``robust_damping``: :mod:`bogie_agents.robust` (the robust classical baseline for v1, docs/controllers.md);
-- ``pretrained``: the policy shipped in ``agents/pretrained/`` (see docs/results.md), checked
-  against the SHA-256 sums in its ``SHA256SUMS`` before anything in it is loaded;
+- ``pretrained``: the policy shipped for the env's version, ``agents/pretrained/v0/`` or
+  ``agents/pretrained/v1/`` (see docs/results.md), checked against the SHA-256 sums in that
+  folder's ``SHA256SUMS`` before anything in it is loaded. The version is the env id's
+  (``env_id=``, e.g. ``Bogie/Hunting-v1``) or, without one, the config's: v1 when the v1 sensor
+  model is on (``sensors.enabled``), else v0 (:func:`env_version`). Each folder's
+  ``config.json`` names the env id it was trained on;
 - a path to a training run folder (``runs/NAME``) or to an SB3 ``.zip``: the saved model and,
   if present beside it, its ``vecnormalize.json`` observation statistics.
 
@@ -35,6 +39,7 @@ from .robust import RobustDampingController
 
 CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": LQRController, "lqg": LQGController,
              "robust_damping": RobustDampingController}
+#: The shipped policies, one folder per env version (``v0``, ``v1``).
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 ALGORITHMS = ("ppo", "sac", "td3")
 NORMALISATION_FILE = "vecnormalize.json"
@@ -230,8 +235,12 @@ def _find_model(path: Path) -> tuple[Path, Path | None, Path | None]:
     return zip_path, norm if norm.is_file() else None, config if config.is_file() else None
 
 
-def load_sb3_policy(path: str | Path, trusted: bool = False) -> SB3Policy:
-    """Load a trained model and its observation statistics. ``trusted`` must be True (see the module doc)."""
+def load_sb3_policy(path: str | Path, trusted: bool = False, env_config: dict | None = None):
+    """Load a trained model and its observation statistics. ``trusted`` must be True (see the module doc).
+
+    A run whose config has a ``residual`` section (:mod:`bogie_agents.residual`) loads as the
+    composite :class:`~bogie_agents.residual.ResidualPolicy`; its classical baseline is built
+    for ``env_config`` (default: the run's own env config)."""
     if not trusted:
         raise ConfigError(f"refusing to load {str(path)!r}: {TRUST_HINT}")
     from stable_baselines3 import PPO, SAC, TD3
@@ -261,9 +270,16 @@ def load_sb3_policy(path: str | Path, trusted: bool = False) -> SB3Policy:
         if stats["mean"] is not None and stats["mean"].shape != model.observation_space.shape:
             raise ConfigError(f"{str(norm_path)!r} has statistics for {stats['mean'].size} observations but the model "
                               f"{str(zip_path)!r} takes {model.observation_space.shape}")  # fmt: skip
-    env_config = run_config.get("env", {}) if isinstance(run_config.get("env", {}), dict) else {}
-    return SB3Policy(model, stats["mean"], stats["var"], stats["clip_obs"], stats["epsilon"], name=str(path),
-                     env_config=env_config)  # fmt: skip
+    run_env = run_config.get("env", {}) if isinstance(run_config.get("env", {}), dict) else {}
+    network = SB3Policy(model, stats["mean"], stats["var"], stats["clip_obs"], stats["epsilon"], name=str(path),
+                        env_config=run_env)  # fmt: skip
+    if run_config.get("residual") is None:
+        return network
+    from .residual import ResidualPolicy, check_residual_config
+
+    residual = check_residual_config(run_config["residual"], where=f"{str(config_path)!r}: 'residual'")
+    baseline = CLASSICAL[residual["baseline"]](env_config if env_config is not None else run_env)
+    return ResidualPolicy(baseline, network, residual["scale"], name=str(path))
 
 
 def check_shapes(policy, env_config: dict) -> None:
@@ -285,18 +301,40 @@ def check_shapes(policy, env_config: dict) -> None:
             )
 
 
-def load_policy(spec: str, env_config: dict, trusted: bool = False):
+def env_version(env_config: dict | None = None, env_id: str | None = None) -> str:
+    """The env version a policy is for: the id's suffix (``Bogie/Hunting-v1`` -> ``v1``) or, with no
+    id, the config's: ``v1`` when the v1 sensor model is on (``sensors.enabled``), else ``v0``."""
+    if env_id is not None:
+        from bogie_env.envs.registration import IDS
+
+        if env_id not in IDS:
+            raise ConfigError(f"env id {env_id!r} is not a bogie-env id; known ids: {', '.join(IDS)}")
+        return env_id.rsplit("-", 1)[-1]
+    sensors = (env_config or {}).get("sensors") or {}
+    return "v1" if sensors.get("enabled") else "v0"
+
+
+def pretrained_dir(env_config: dict | None = None, env_id: str | None = None) -> Path:
+    """The folder of the policy shipped for the env's version (:func:`env_version`)."""
+    return PRETRAINED_DIR / env_version(env_config, env_id)
+
+
+def load_policy(spec: str, env_config: dict, trusted: bool = False, env_id: str | None = None):
     """A policy by name (passive, skyhook, lqr, lqg, pretrained) or path.
 
-    ``pretrained`` is verified against its SHA-256 manifest; a path is loaded only when
+    ``pretrained`` is the policy shipped for the env's version (``env_id``, or the config's:
+    :func:`env_version`), verified against its SHA-256 manifest; a path is loaded only when
     ``trusted`` is True, since an SB3 model file is code."""
     if spec in CLASSICAL:
         return CLASSICAL[spec](env_config)
     if spec == "pretrained":
-        if not PRETRAINED_DIR.is_dir() or not list(PRETRAINED_DIR.glob("*.zip")):
-            raise ConfigError(f"no pretrained policy in {PRETRAINED_DIR}; train one (docs/results.md)")
-        verify_manifest(PRETRAINED_DIR)
-        policy = load_sb3_policy(PRETRAINED_DIR, trusted=True)
+        folder = pretrained_dir(env_config, env_id)
+        if not folder.is_dir() or not list(folder.glob("*.zip")):
+            shipped = sorted(p.name for p in PRETRAINED_DIR.iterdir() if p.is_dir()) if PRETRAINED_DIR.is_dir() else []
+            raise ConfigError(f"no pretrained policy for env version {folder.name!r} in {folder} (shipped: "
+                              f"{', '.join(shipped) or 'none'}); train one (docs/results.md)")  # fmt: skip
+        verify_manifest(folder)
+        policy = load_sb3_policy(folder, trusted=True, env_config=env_config)
     else:
         path = Path(spec)
         if not path.exists():
@@ -306,6 +344,6 @@ def load_policy(spec: str, env_config: dict, trusted: bool = False):
             )
         if not trusted:
             raise ConfigError(f"policy {spec!r} is a path: {TRUST_HINT}")
-        policy = load_sb3_policy(path, trusted=True)
+        policy = load_sb3_policy(path, trusted=True, env_config=env_config)
     check_shapes(policy, env_config)
     return policy

@@ -24,7 +24,7 @@ from bogie_env.envs.task import HuntingTask
 from bogie_env.params import ConfigError
 
 from .evaluate import PARTS, ProtocolSettings, _policy_config, evaluate_policy
-from .policies import PRETRAINED_DIR, load_policy
+from .policies import load_policy, pretrained_dir
 
 
 def slug(spec: str) -> str:
@@ -182,7 +182,7 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
         result = distributed[spec] if spec in distributed else \
             evaluate_policy(load_policy(spec, env_config, trusted), env_config, settings, parts)  # fmt: skip
         result["policy"] = spec
-        folder = PRETRAINED_DIR if spec == "pretrained" else Path(spec)
+        folder = pretrained_dir(env_config) if spec == "pretrained" else Path(spec)
         progress = folder / "progress.json" if folder.is_dir() else None
         if progress is not None and progress.is_file():
             result["training"] = json.loads(progress.read_text())

@@ -34,8 +34,12 @@ from bogie_env.params import CONFIG_DIR, ConfigError
 from .policies import NORMALISATION_FILE, save_normalisation
 
 ALGOS = ("ppo", "sac", "td3")
-RUN_KEYS = {"algo", "seed", "total_timesteps", "n_envs", "env", "eval_env", "vecnormalize", "policy", "policy_kwargs",
-            "hyperparams", "eval", "checkpoint", "torch_threads", "max_wall_time_s"}  # fmt: skip
+RUN_KEYS = {"algo", "seed", "total_timesteps", "n_envs", "env_id", "env", "eval_env", "vecnormalize", "policy",
+            "policy_kwargs", "hyperparams", "eval", "checkpoint", "torch_threads", "max_wall_time_s", "residual",
+            "extra_envs"}  # fmt: skip
+EXTRA_ENV_KEYS = {"env_id", "n_envs", "env"}
+#: The env id a config without ``env_id`` trains on (the configs written before v1 existed).
+DEFAULT_ENV_ID = "Bogie/Hunting-v0"
 
 
 def write_json_atomic(path: Path, payload: dict) -> None:
@@ -139,11 +143,27 @@ def validate_run_config(config: dict, where: str = "") -> None:
     _int(where, "torch_threads", config.get("torch_threads", 1), 1, 256)
     if config.get("max_wall_time_s") is not None:
         _float(where, "max_wall_time_s", config["max_wall_time_s"], 0.0, 1e8)
+    variant = env_variant(config.get("env_id", DEFAULT_ENV_ID), where)
     for key in ("env", "eval_env"):
         try:
-            make_config(_mapping(where, key, config.get(key)))
+            make_config(_mapping(where, key, config.get(key)), variant=variant)
         except ConfigError as error:
             raise ConfigError(f"agent config {where}: in {key!r}: {error}") from None
+    extra = config.get("extra_envs") or []
+    if not isinstance(extra, list):
+        raise _bad(where, "extra_envs", extra, "a list of {env_id, n_envs, env} mappings")
+    for k, item in enumerate(extra):
+        item = _mapping(where, f"extra_envs[{k}]", item, EXTRA_ENV_KEYS)
+        _int(where, f"extra_envs[{k}].n_envs", item.get("n_envs"), 1, MAX_N_ENVS)
+        try:
+            make_config(_mapping(where, f"extra_envs[{k}].env", item.get("env")),
+                        variant=env_variant(item.get("env_id"), f"{where}: extra_envs[{k}]"))  # fmt: skip
+        except ConfigError as error:
+            raise ConfigError(f"agent config {where}: in 'extra_envs[{k}]': {error}") from None
+    if config.get("residual") is not None:
+        from .residual import check_residual_config
+
+        check_residual_config(config["residual"], where=f"agent config {where}: 'residual'")
     if config.get("policy", "MlpPolicy") != "MlpPolicy":
         raise _bad(where, "policy", config.get("policy"), "MlpPolicy (the observations are flat vectors)")
     pk = _mapping(where, "policy_kwargs", config.get("policy_kwargs"), POLICY_KWARGS)
@@ -182,7 +202,7 @@ def validate_run_config(config: dict, where: str = "") -> None:
         else:
             _float(where, name, value, low, high, low_open=key not in ("ent_coef", "learning_starts", "target_entropy"))
     if algo == "ppo" and "batch_size" in hyper:
-        rollout = hyper.get("n_steps", 2048) * config["n_envs"]
+        rollout = hyper.get("n_steps", 2048) * total_envs(config)
         if hyper["batch_size"] > rollout:
             raise _bad(where, "hyperparams.batch_size", hyper["batch_size"],
                        f"at most n_steps x n_envs = {rollout} (one rollout)")  # fmt: skip
@@ -190,6 +210,36 @@ def validate_run_config(config: dict, where: str = "") -> None:
         values = _mapping(where, section, config.get(section), known)
         for key, value in values.items():
             _int(where, f"{section}.{key}", value, 1, 10**10 if key == "freq_steps" else MAX_N_ENVS)
+
+
+def total_envs(config: dict) -> int:
+    """The training's parallel envs: ``n_envs`` plus those of ``extra_envs``."""
+    return int(config["n_envs"]) + sum(int(item["n_envs"]) for item in config.get("extra_envs") or [])
+
+
+def env_variant(env_id, where: str = "(mapping)") -> str | None:
+    """The config variant behind a registered env id (the agent config's ``env_id``)."""
+    from bogie_env.envs.registration import IDS
+
+    if not isinstance(env_id, str) or env_id not in IDS:
+        raise _bad(where, "env_id", env_id, ", ".join(IDS))
+    return IDS[env_id]
+
+
+def env_config_of(config: dict, key: str = "env") -> dict:
+    """The full env config of a run: ``env_id``'s variant with the run's ``env`` (or ``eval_env``) merged in."""
+    return make_config(config.get(key) or {}, variant=env_variant(config.get("env_id", DEFAULT_ENV_ID)))
+
+
+def _residual(venv, config: dict, env_config: dict):
+    """Wrap the native VecEnv in :class:`~bogie_agents.residual.ResidualVecEnv` if the run is a residual one."""
+    if config.get("residual") is None:
+        return venv
+    from .policies import load_policy
+    from .residual import ResidualVecEnv, check_residual_config
+
+    residual = check_residual_config(config["residual"])
+    return ResidualVecEnv(venv, load_policy(residual["baseline"], env_config), residual["scale"])
 
 
 def _is_number(text: str) -> bool:
@@ -231,13 +281,25 @@ def make_vec_envs(config: dict, seed: int):
 
     from .vec_env import BogieHuntingSB3VecEnv
 
-    env = VecMonitor(BogieHuntingSB3VecEnv(config["n_envs"], config.get("env") or {}, seed=seed))
+    train_config, eval_config = env_config_of(config, "env"), env_config_of(config, "eval_env")
+    env = _residual(BogieHuntingSB3VecEnv(config["n_envs"], train_config, seed=seed), config, train_config)
+    if config.get("extra_envs"):  # further tasks (routes, say) beside the main one, rows n_envs, n_envs + 1, ...
+        from .vec_env import ConcatVecEnv
+
+        parts, offset = [env], config["n_envs"]
+        for item in config["extra_envs"]:
+            extra_config = make_config(item.get("env") or {}, variant=env_variant(item["env_id"]))
+            parts.append(_residual(BogieHuntingSB3VecEnv(item["n_envs"], extra_config, seed=seed + offset), config,
+                                   extra_config))  # fmt: skip
+            offset += item["n_envs"]
+        env = ConcatVecEnv(parts)
+    env = VecMonitor(env)
     vn = {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, **(config.get("vecnormalize") or {})}
     vn.setdefault("gamma", (config.get("hyperparams") or {}).get("gamma", 0.99))
     env = VecNormalize(env, **vn)
     eval_cfg = config.get("eval") or {}
-    eval_env = VecMonitor(BogieHuntingSB3VecEnv(int(eval_cfg.get("n_envs", 4)), config.get("eval_env") or {},
-                                                 seed=seed + 10_000))  # fmt: skip
+    eval_env = VecMonitor(_residual(BogieHuntingSB3VecEnv(int(eval_cfg.get("n_envs", 4)), eval_config, seed=seed + 10_000),
+                                    config, eval_config))  # fmt: skip
     eval_env = VecNormalize(eval_env, training=False, norm_reward=False, clip_obs=vn["clip_obs"])
     return env, eval_env
 
@@ -298,7 +360,7 @@ def steps_learned(config: dict, total: int) -> int:
     (PPO) or ``n_envs x train_freq`` (SAC, TD3), so a budget is rounded up to a whole number of
     them. Training to this total keeps the progress bar's count and total consistent."""
     hyper = config.get("hyperparams") or {}
-    unit = config["n_envs"] * int(hyper.get("n_steps", 2048) if config["algo"] == "ppo" else hyper.get("train_freq", 1))
+    unit = total_envs(config) * int(hyper.get("n_steps", 2048) if config["algo"] == "ppo" else hyper.get("train_freq", 1))
     return -(-total // unit) * unit
 
 
@@ -350,7 +412,8 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
     set_random_seed(seed)
     run_config = copy.deepcopy(config)
     run_config["total_timesteps"] = total
-    run_config["env"] = make_config(config.get("env") or {})
+    run_config["env_id"] = config.get("env_id", DEFAULT_ENV_ID)
+    run_config["env"] = env_config_of(config, "env")
     write_json_atomic(out / "config.json", run_config)
 
     env, eval_env = make_vec_envs(config, seed)
@@ -390,7 +453,7 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
     done_before = int(model.num_timesteps)
     eval_cfg = config.get("eval") or {}
     ckpt_cfg = config.get("checkpoint") or {}
-    n_envs = config["n_envs"]
+    n_envs = total_envs(config)
 
     class SaveNormalisation(BaseCallback):
         """On a new best evaluation: store the VecNormalize statistics beside best_model.zip."""

@@ -152,3 +152,70 @@ class BogieHuntingSB3VecEnv(VecEnv):
 
     def get_images(self) -> Sequence[np.ndarray | None]:
         return [None for _ in range(self.num_envs)]
+
+
+class ConcatVecEnv(VecEnv):
+    """Several VecEnvs with the same spaces as one: sub-envs ``0 .. n_0 - 1`` are the first's, and so
+    on. It lets one training see several tasks at once (tangent track and routes, say), each
+    stepping its rows in its own compiled call."""
+
+    def __init__(self, venvs: Sequence[VecEnv]) -> None:
+        if not venvs:
+            raise ValueError("ConcatVecEnv needs at least one VecEnv")
+        first = venvs[0]
+        for venv in venvs[1:]:
+            if venv.observation_space != first.observation_space or venv.action_space != first.action_space:
+                raise ValueError(f"ConcatVecEnv: spaces differ ({venv.observation_space}, {venv.action_space} against "
+                                 f"{first.observation_space}, {first.action_space})")  # fmt: skip
+        self.venvs = list(venvs)
+        self.bounds = np.cumsum([0] + [v.num_envs for v in self.venvs])
+        super().__init__(int(self.bounds[-1]), first.observation_space, first.action_space)
+
+    def reset(self):
+        return np.concatenate([venv.reset() for venv in self.venvs])
+
+    def step_async(self, actions: np.ndarray) -> None:
+        for k, venv in enumerate(self.venvs):
+            venv.step_async(actions[self.bounds[k]:self.bounds[k + 1]])
+
+    def step_wait(self):
+        parts = [venv.step_wait() for venv in self.venvs]
+        obs = np.concatenate([p[0] for p in parts])
+        rewards = np.concatenate([p[1] for p in parts])
+        dones = np.concatenate([p[2] for p in parts])
+        infos = [info for p in parts for info in p[3]]
+        return obs, rewards, dones, infos
+
+    def seed(self, seed: int | None = None):
+        return [s for k, venv in enumerate(self.venvs) for s in venv.seed(None if seed is None else seed + int(self.bounds[k]))]
+
+    def close(self) -> None:
+        for venv in self.venvs:
+            venv.close()
+
+    def _split(self, indices) -> list[tuple[VecEnv, list[int]]]:
+        rows = range(self.num_envs) if indices is None else ([int(indices)] if isinstance(indices, (int, np.integer))
+                                                              else [int(i) for i in indices])  # fmt: skip
+        out = []
+        for k, venv in enumerate(self.venvs):
+            local = [i - int(self.bounds[k]) for i in rows if self.bounds[k] <= i < self.bounds[k + 1]]
+            if local:
+                out.append((venv, local))
+        return out
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return [v for venv, local in self._split(indices) for v in venv.get_attr(attr_name, local)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        for venv, local in self._split(indices):
+            venv.set_attr(attr_name, value, None if len(local) == venv.num_envs else local)
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        return [v for venv, local in self._split(indices)
+                for v in venv.env_method(method_name, *method_args, indices=local, **method_kwargs)]  # fmt: skip
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [v for venv, local in self._split(indices) for v in venv.env_is_wrapped(wrapper_class, local)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [None for _ in range(self.num_envs)]

@@ -174,7 +174,7 @@ def test_pretrained_policy_meets_the_target(env_config):
     """The shipped policy raises the closed-loop critical speed by at least 100 km/h over
     passive, from a small perturbation and from the passive limit cycle, within the actuator
     limits on the irregular track."""
-    assert list(PRETRAINED_DIR.glob("*.zip")), "agents/pretrained/ must ship a policy"
+    assert list((PRETRAINED_DIR / "v0").glob("*.zip")), "agents/pretrained/v0/ must ship a policy"
     pretrained = evaluate_policy(load_policy("pretrained", env_config), env_config, ProtocolSettings(),
                                  parts=("critical", "effort"))  # fmt: skip
     passive = evaluate_policy(PassiveController(env_config), env_config, ProtocolSettings(), parts=("critical",))

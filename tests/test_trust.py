@@ -13,7 +13,7 @@ import bogie_agents.policies as policies
 from bogie_agents.policies import (
     MANIFEST_FILE,
     NORMALISATION_FILE,
-    PRETRAINED_DIR,
+    PRETRAINED_DIR as PRETRAINED_ROOT,
     load_normalisation,
     load_policy,
     load_sb3_policy,
@@ -23,6 +23,8 @@ from bogie_agents.cli import main as cli_main
 from bogie_env.envs.config import make_config
 from bogie_env.fileio import load_yaml, write_text_atomic
 from bogie_env.params import BogieParams, ConfigError
+
+PRETRAINED_DIR = PRETRAINED_ROOT / "v0"  # the v0 policy (these tests use v0's default config)
 
 
 class _RunsCode:
@@ -41,10 +43,10 @@ def env_config():
 
 
 def _pretrained_copy(tmp_path, monkeypatch):
-    folder = tmp_path / "pretrained"
-    shutil.copytree(PRETRAINED_DIR, folder)
-    monkeypatch.setattr(policies, "PRETRAINED_DIR", folder)
-    return folder
+    root = tmp_path / "pretrained"
+    shutil.copytree(PRETRAINED_ROOT, root)
+    monkeypatch.setattr(policies, "PRETRAINED_DIR", root)
+    return root / "v0"
 
 
 def test_shipped_policy_has_a_manifest_and_data_only_statistics():
