@@ -467,7 +467,9 @@ class BogieModel:
         q = _as_rows(np.zeros(N_INPUTS) if inputs is None else inputs, N_INPUTS, n, "inputs")
         yt = _track_rows(track, n)
         out = np.empty((n, N_STATES))
-        rhs_batch_kernel(x, np.ascontiguousarray(v), q, yt, self.coefficients, out)
+        # a writable contiguous copy whatever the caller passed: one compiled signature (a broadcast
+        # speed is read-only, which numba types, and compiles, separately)
+        rhs_batch_kernel(x, np.require(v, np.float64, ("C", "W")), q, yt, self.coefficients, out)
         return out[0] if single else out
 
     def jacobian(

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy.integrate import solve_ivp
 
 from .actuators import N_CHANNELS, channel_output, channel_velocity, generalised_forces
 from .dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _rhs_row, check_speed, rhs_single_kernel
@@ -204,6 +203,8 @@ def reference_solution(
 
     The speed is ``speed + accel * (t - t_span[0])`` (m/s). Returns scipy's OdeResult.
     """
+    from scipy.integrate import solve_ivp  # here: the simulator imports this module, and scipy.integrate is slow to import
+
     x0 = np.asarray(x0, dtype=float)
     if x0.shape != (N_STATES,) or not np.all(np.isfinite(x0)):
         raise ValueError(f"x0 must be a finite array of shape ({N_STATES},); got shape {x0.shape}")

@@ -20,7 +20,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import brentq
+
+try:  # numpy's eigenvalue kernel itself: np.linalg.eigvals' argument checks cost a third of a 16 x 16 call
+    from numpy.linalg import _umath_linalg
+except ImportError:  # pragma: no cover - a numpy without the private module
+    _umath_linalg = None
 
 from .dynamics import LATERAL_STATES, MAX_SPEED, MIN_SPEED, N_INPUTS, N_STATES, N_TRACK, BogieModel, check_speed, jacobian_kernel
 from .params import BogieParams
@@ -72,8 +76,19 @@ class SpeedLinearization:
 
     def growth_rate(self, speed: float | np.ndarray) -> np.ndarray | float:
         """Largest real part of the lateral eigenvalues (1/s) at each speed."""
-        values = np.linalg.eigvals(self.lateral_jacobian(speed))
-        return values.real.max(axis=-1)
+        return _eigvals(self.lateral_jacobian(speed)).real.max(axis=-1)
+
+
+def _eigvals(matrices: np.ndarray) -> np.ndarray:
+    """Complex eigenvalues of real square matrices (..., n, n), as ``np.linalg.eigvals`` computes
+    them (the same LAPACK call, the same values) without its per-call checks: the matrices of
+    this module are finite by construction, and a LAPACK failure (NaN) still raises."""
+    if _umath_linalg is None:
+        return np.linalg.eigvals(matrices).astype(complex)
+    values = _umath_linalg.eigvals(matrices, signature="d->D")
+    if np.isnan(values.real).any():
+        raise np.linalg.LinAlgError(f"eigenvalues did not converge (or the matrix is not finite): {values}")
+    return values
 
 
 def linearize(model: BogieModel, speeds: tuple[float, float, float] = (40.0, 80.0, 160.0)) -> SpeedLinearization:
@@ -121,7 +136,7 @@ class CriticalSpeed:
 
 
 def _leading_eigenvalue(lin: SpeedLinearization, speed: float) -> complex:
-    values = np.linalg.eigvals(lin.lateral_jacobian(speed))
+    values = _eigvals(lin.lateral_jacobian(speed))
     k = int(np.argmax(values.real + 1e-9 * np.abs(values.imag)))  # prefer the oscillatory one on ties
     return complex(values[k])
 
@@ -155,15 +170,19 @@ def critical_speed(
     lo, hi = v_min_kmh / KMH, v_max_kmh / KMH
     n_cells = max(1, int(np.ceil((hi - lo) / (scan_step_kmh / KMH))))
     grid = np.linspace(lo, hi, n_cells + 1)
-    rates = np.asarray(linearization.growth_rate(grid))
     window = (lo, hi)
-    if rates[0] >= 0.0:
+    if linearization.growth_rate(float(grid[0])) >= 0.0:
         ev = _leading_eigenvalue(linearization, lo)
         return CriticalSpeed(lo, abs(ev.imag) / (2 * np.pi), ev, linearization.equilibrium, window, "unstable")
-    above = np.nonzero(rates >= 0.0)[0]
-    if above.size == 0:
+    # the grid upwards until the first speed that is not stable (a scan that stops there: the
+    # speeds above are not needed, and each costs one eigenvalue problem)
+    for k in range(1, grid.size):
+        if linearization.growth_rate(float(grid[k])) >= 0.0:
+            break
+    else:
         return CriticalSpeed(float("nan"), float("nan"), complex("nan"), linearization.equilibrium, window, "stable")
-    k = int(above[0])
+    from scipy.optimize import brentq  # here, not at import: scipy.optimize takes about 0.3 s to import
+
     speed = brentq(
         lambda s: float(linearization.growth_rate(s)), grid[k - 1], grid[k], xtol=tol_kmh / KMH, rtol=1e-12
     )

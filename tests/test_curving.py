@@ -304,3 +304,34 @@ def test_one_interval_on_a_route_equals_a_python_rk4(paper_model):
     assert np.max(np.abs(sim.x[0] - x) / scale) < 1e-6
     assert np.allclose(sim.track_sample[0], track.under_wheelsets(sim.distance[0], L1), rtol=0, atol=1e-15)
     assert sim.track_sample[0, CURVATURE_WHEELSET1] > sim.track_sample[0, CURVATURE_FRAME] > 0
+
+
+def test_an_unstable_root_gives_way_to_the_steady_state_the_bogie_settles_at(paper_model):
+    """R 7000 m, 150 mm cant, 350 km/h: the root finder's first steady state has the rear wheelset
+    3 µm onto its flange and a real eigenvalue of about +12.9 1/s there (a saddle: a time
+    simulation started next to it leaves it). The reported steady state is the one a 60 s
+    simulation entering the curve settles at (both wheelsets on the flange), which is stable, and
+    the first root is reported as such."""
+    result = steady_curving(paper_model, 7000.0, 0.15, 350.0, "left")
+    assert result.method == "time-simulation" and result.max_real_eigenvalue < 0.0
+    assert result.unstable_root is not None and result.unstable_root["max_real_eigenvalue"] > 1.0
+    assert result.to_dict()["stable"] and all(result.quantities["flange_contact"][0])
+    v = 350.0 / 3.6
+    samples = curve_samples(1 / 7000.0, 0.15)
+    route = route_from_dict({"name": "c", "segments": [
+        {"type": "curve", "length": 1e5, "radius": 7000.0, "cant": 0.15, "direction": "left"}]})  # fmt: skip
+    # the time simulation, from the unstable root nudged either way and from straight track
+    starts = [paper_model.equilibrium(v)]
+    unstable, _, _ = solve_steady_state(paper_model, v, samples)
+    assert unstable[8] == pytest.approx(result.unstable_root["lateral_displacement_m"][1], abs=1e-12)
+    for nudge in (-1e-4, 1e-4):
+        start = unstable.copy()
+        start[[0, 8]] += nudge
+        starts.append(start)
+    sim = BatchSimulator(paper_model, len(starts), 0.01, (v, v), track=TrackInput(route=route))
+    sim.set_rows(slice(None), np.array(starts), v)
+    sim.run(6000, record_every=10**9)  # 60 s
+    positions = [0, 4, 6, 8, 12, 14, 16, 18]
+    for row in range(len(starts)):
+        np.testing.assert_allclose(sim.x[row, positions], result.state[positions], rtol=1e-6, atol=1e-9)
+        assert np.max(np.abs(sim.x[row, 1::2])) < 1e-8

@@ -125,6 +125,7 @@ def test_gyroscopic_coupling_is_power_neutral(paper_model, rng):
     """The Iwy terms of Eqs. (5)-(6) exchange power between yaw and roll but create none."""
     p_no_gyro = paper_model.coefficients.copy()
     p_no_gyro[P_IWY] = 0.0
+    p_no_gyro.setflags(write=False)  # like the model's: the kernel's compiled signature, not a second one
     x = random_states(rng, 1)[0]
     q, yt = np.zeros(4), np.zeros(2)
     with_gyro, without = np.empty(N_STATES), np.empty(N_STATES)
@@ -217,6 +218,7 @@ def test_rigid_bogie_kinematic_wavelength(paper_params, speed):
     model = BogieModel(p.replace(Ksx=0.0, Ksy=0.0, Csx=0.0, Csy=0.0, f11=1e8, f33=1e8, f12=0.0, f22=0.0))
     coefficients = model.coefficients.copy()
     coefficients[[P_KPX, P_KPY]] = 1e12
+    coefficients.setflags(write=False)  # like the model's: the kernel's compiled signature, not a second one
     jac = np.empty((N_STATES, N_STATES))
     jacobian_kernel(np.zeros(N_STATES), speed, np.zeros(4), np.zeros(2), coefficients, jac)
     idx = [state_index(n) for n in ("y1", "dy1", "psi1", "dpsi1", "y2", "dy2", "psi2", "dpsi2",
