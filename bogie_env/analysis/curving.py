@@ -60,40 +60,53 @@ DETAIL_NAMES = (
 )
 
 
-@njit(cache=True)
-def wheel_rail_details_kernel(x, V, yt, p, out):
-    """Per record n and wheelset i, the DETAIL_NAMES columns into out (N, 2, len(DETAIL_NAMES)).
+@njit(cache=True, inline="always")
+def wheelset_details(x, inv_v, yt, p, i, row):
+    """The DETAIL_NAMES columns of wheelset i (0 front, 1 rear) of one bogie into row
+    (len(DETAIL_NAMES),): state x (20,), 1/speed, track samples yt (N_TRACK,), coefficients p.
 
     The same compiled contact functions as the right-hand side (``dynamics._creep``,
-    ``dynamics._wheel_forces``); Y per wheel is the force on its rail, + outwards.
+    ``dynamics._wheel_forces``); Y per wheel is the force on its rail, + outwards. The env's
+    route variant reads its curving quantities through this function too.
     """
+    o = 8 * i
+    y_rel = x[o] - yt[ALIGNMENT_WHEELSET1 + i]
+    kappa = yt[CURVATURE_WHEELSET1 + i]
+    dy, psi, dpsi, phi, dphi = x[o + 1], x[o + 4], x[o + 5], x[o + 6], x[o + 7]
+    (xxl, xyl, xsl, xxr, xyr, xsr, fxl, fyl, _, fxr, fyr, _) = _creep(y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p)
+    (_, Fy_l, _, _, _, _, Fy_r, _, _, _, Ny_l, Ny_r, flange) = _wheel_forces(y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p)
+    row[XI_X_L] = xxl
+    row[XI_Y_L] = xyl
+    row[XI_SP_L] = xsl
+    row[XI_X_R] = xxr
+    row[XI_Y_R] = xyr
+    row[XI_SP_R] = xsr
+    row[FX_L] = fxl
+    row[FY_L] = fyl
+    row[FX_R] = fxr
+    row[FY_R] = fyr
+    # The flange force acts on the left wheel when positive (y_rel >= delta), else on the right.
+    row[Y_L] = -(Fy_l + Ny_l - max(flange, 0.0))
+    row[Y_R] = Fy_r + Ny_r - min(flange, 0.0)
+    row[FLANGE] = flange
+    row[GUIDING] = -(Fy_l + Fy_r + Ny_l + Ny_r - flange)
+
+
+@njit(cache=True, inline="always")
+def wheelset_wear_number(row):
+    """The wear number Tγ of one wheelset from its details row: -(Fx ξx + Fy ξy) summed over
+    both wheels (N; the creep work per metre rolled)."""
+    return -(row[FX_L] * row[XI_X_L] + row[FY_L] * row[XI_Y_L] + row[FX_R] * row[XI_X_R] + row[FY_R] * row[XI_Y_R])
+
+
+@njit(cache=True)
+def wheel_rail_details_kernel(x, V, yt, p, out):
+    """Per record n and wheelset i, the DETAIL_NAMES columns into out (N, 2, len(DETAIL_NAMES))
+    (:func:`wheelset_details`)."""
     for n in range(x.shape[0]):
         inv_v = 1.0 / V[n]
         for i in range(2):
-            o = 8 * i
-            y_rel = x[n, o] - yt[n, ALIGNMENT_WHEELSET1 + i]
-            kappa = yt[n, CURVATURE_WHEELSET1 + i]
-            dy, psi, dpsi, phi, dphi = x[n, o + 1], x[n, o + 4], x[n, o + 5], x[n, o + 6], x[n, o + 7]
-            (xxl, xyl, xsl, xxr, xyr, xsr, fxl, fyl, _, fxr, fyr, _) = _creep(y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p)
-            (_, Fy_l, _, _, _, _, Fy_r, _, _, _, Ny_l, Ny_r, flange) = _wheel_forces(
-                y_rel, dy, psi, dpsi, phi, dphi, inv_v, kappa, p
-            )
-            row = out[n, i]
-            row[XI_X_L] = xxl
-            row[XI_Y_L] = xyl
-            row[XI_SP_L] = xsl
-            row[XI_X_R] = xxr
-            row[XI_Y_R] = xyr
-            row[XI_SP_R] = xsr
-            row[FX_L] = fxl
-            row[FY_L] = fyl
-            row[FX_R] = fxr
-            row[FY_R] = fyr
-            # The flange force acts on the left wheel when positive (y_rel >= delta), else on the right.
-            row[Y_L] = -(Fy_l + Ny_l - max(flange, 0.0))
-            row[Y_R] = Fy_r + Ny_r - min(flange, 0.0)
-            row[FLANGE] = flange
-            row[GUIDING] = -(Fy_l + Fy_r + Ny_l + Ny_r - flange)
+            wheelset_details(x[n], inv_v, yt[n], p, i, out[n, i])
 
 
 def curve_samples(curvature: float, cant_m: float) -> np.ndarray:

@@ -17,6 +17,7 @@ from ..actuators import MAX_DELAY_STEPS, MODES
 from ..fileio import load_yaml
 from ..params import CONFIG_DIR, FIELDS, BogieParams, ConfigError, load_params
 from ..track import ALIGNMENT_LEVELS
+from .routes import validate_route_config
 from .scenario import validate_randomize
 from .sensors import SENSOR_NAMES, SENSOR_SETTINGS, default_sensor_config
 
@@ -71,9 +72,22 @@ def default_config() -> dict[str, Any]:
         # the sensor model of the "sensors" observation (envs/sensors.py); off in v0
         "sensors": default_sensor_config(),
         "integration": {"step_criterion": "stability", "tolerance": 0.1, "n_sub": None},
+        # wear_weight, flange_weight: the curving penalties of the route variant (0: off); the wear
+        # penalty is min(mean wheelset wear number / wear_reference, 1), wear_reference in N
         "reward": {"lateral_weight": 0.5, "yaw_weight": 0.2, "effort_weight": 0.2, "time_weight": 0.0,
-                   "yaw_reference": 5e-3},  # fmt: skip
-        "hunting": {"window_m": 100.0, "rms_fraction": 0.6, "blowup_m": 0.1},
+                   "yaw_reference": 5e-3, "wear_weight": 0.0, "flange_weight": 0.0, "wear_reference": 65.0},  # fmt: skip
+        # detrend_m: the detector (and the lateral penalty) use each wheelset's displacement minus
+        # its exponentially weighted mean over detrend_m of track, so the quasi-static offset in a
+        # curve is not taken for hunting (route variant: 10 m); null (v0, v1): the displacement
+        "hunting": {"window_m": 100.0, "rms_fraction": 0.6, "blowup_m": 0.1, "detrend_m": None},
+        # route variant (envs/routes.py): names null is straight track (v0, v1); else a shipped
+        # route name or path, or a list drawn per episode; speed_kmh per route (a speed or
+        # [low, high], default routes.ROUTE_SPEEDS_KMH or the file's design speed); copies: rounds
+        # of the routes on the layout (different irregularity under each copy)
+        "route": {"names": None, "speed_kmh": None, "copies": 8},
+        # route variant's termination: the wheel's Y/Q, averaged over y_over_q_window_m of track
+        # (EN 14363's 2 m sliding mean), above y_over_q_limit ends the episode (null: never)
+        "curving": {"y_over_q_limit": None, "y_over_q_window_m": 2.0},
         # threads for batches of >= simulator.PARALLEL_MIN_ROWS rows (None: BOGIE_NUM_THREADS or
         # the usable cores); results do not depend on it
         "num_threads": None,
@@ -224,16 +238,28 @@ def validate(config: dict) -> dict:
     if not isinstance(ob["include_actuators"], bool):
         raise ConfigError("config 'observation.include_actuators' must be true or false")
     rw = c["reward"]
-    for key in ("lateral_weight", "yaw_weight", "effort_weight"):
+    weights = ("lateral_weight", "yaw_weight", "effort_weight", "wear_weight", "flange_weight")
+    for key in weights:
         rw[key] = _number(f"reward.{key}", rw[key], 0.0, 1.0)
-    if rw["lateral_weight"] + rw["yaw_weight"] + rw["effort_weight"] >= 1.0:
-        raise ConfigError("config reward weights must sum to less than 1, so a step alive always pays (docs)")
+    if sum(rw[key] for key in weights) >= 1.0:
+        raise ConfigError(f"config reward weights ({', '.join(weights)}) must sum to less than 1, so a step alive always pays (docs)")
+    rw["wear_reference"] = _number("reward.wear_reference", rw["wear_reference"], 0.0, 1e6, low_open=True)
     rw["time_weight"] = _number("reward.time_weight", rw["time_weight"], 0.0, 1e3)
     rw["yaw_reference"] = _number("reward.yaw_reference", rw["yaw_reference"], 0.0, 1.0, low_open=True)
     hu = c["hunting"]
     hu["window_m"] = _number("hunting.window_m", hu["window_m"], 1.0, 1e4)
     hu["rms_fraction"] = _number("hunting.rms_fraction", hu["rms_fraction"], 0.0, 10.0, low_open=True)
     hu["blowup_m"] = _number("hunting.blowup_m", hu["blowup_m"], 0.0, 10.0, low_open=True)
+    if hu["detrend_m"] is not None:
+        hu["detrend_m"] = _number("hunting.detrend_m", hu["detrend_m"], 0.1, 1e4)
+    c["route"] = validate_route_config(c["route"], MIN_SPEED_KMH, MAX_SPEED_KMH)
+    cu = c["curving"]
+    if cu["y_over_q_limit"] is not None:
+        cu["y_over_q_limit"] = _number("curving.y_over_q_limit", cu["y_over_q_limit"], 0.0, 10.0, low_open=True)
+    cu["y_over_q_window_m"] = _number("curving.y_over_q_window_m", cu["y_over_q_window_m"], 0.1, 1e4)
+    if (rw["wear_weight"] > 0 or rw["flange_weight"] > 0 or cu["y_over_q_limit"] is not None) and c["route"]["names"] is None:
+        raise ConfigError("config 'reward.wear_weight', 'reward.flange_weight' and 'curving.y_over_q_limit' act on routes: "
+                          "set 'route.names' (e.g. Bogie/HuntingRoute-v1) or leave them at 0 / null")  # fmt: skip
     t = c["num_threads"]
     if t is not None and (isinstance(t, bool) or not isinstance(t, int) or t < 1):
         raise ConfigError(f"config 'num_threads' = {t!r} must be null or an integer >= 1")
@@ -297,6 +323,28 @@ VARIANTS.update({
 })
 
 
+#: The route variant (Bogie/HuntingRoute-v1): v1's world on the shipped routes at their line
+#: speeds (constant speed per episode, drawn from each route's range), with the curving terms
+#: of the reward and termination (docs/environment.md, "Bogie/HuntingRoute-v1").
+#: time_weight 5.4 (km/h per s): a step alive pays what a step of v1's 1.5 m/s^2 ramp pays.
+#: The lateral penalty and the detector read the displacement about its mean over 10 m of track
+#: (hunting.detrend_m): a first-order high-pass that passes hunting (wavelengths below 25 m) with
+#: at least 93 % of its amplitude and lags a transition's ramp of the curving offset (10 mm
+#: over 180 m) by 0.6 mm.
+ROUTE_NAMES = ["high-speed-7000", "conventional-1500", "s-curve"]
+_ROUTE_EXTRA: dict[str, Any] = {
+    "route": {"names": ROUTE_NAMES, "copies": 8},
+    "reward": {"lateral_weight": 0.3, "yaw_weight": 0.1, "effort_weight": 0.1, "wear_weight": 0.2, "flange_weight": 0.2,
+               "time_weight": 5.4},
+    "hunting": {"detrend_m": 10.0},
+    "curving": {"y_over_q_limit": 0.8},
+}  # fmt: skip
+VARIANTS.update({
+    "v1_route": {**_v1(copy.deepcopy(_ACTUATOR_DEFAULTS)), **copy.deepcopy(_ROUTE_EXTRA)},
+    "v1_route_passive": {**_v1(passive_actuators()), **copy.deepcopy(_ROUTE_EXTRA)},
+})
+
+
 def make_config(
     config: Mapping[str, Any] | str | Path | None = None, *, variant: str | None = None, **overrides: Any
 ) -> dict:
@@ -330,6 +378,12 @@ def max_steps_for(config: Mapping[str, Any] | None) -> int:
     """Steps to ramp from the lowest start to the highest end at the slowest rate, +10 %
     (100,000 when a fixed-speed run has no natural end)."""
     c = make_config(config)
+    if c["route"]["names"] is not None:  # constant speed along the longest route at its lowest speed
+        from .routes import build_layout
+
+        layout = build_layout(c["route"])
+        slowest = min(lo for lo, _ in layout.speed_ranges_kmh) / 3.6
+        return int(math.ceil(layout.max_route_length() / slowest / c["dt"] * 1.1)) + 10
     sp = c["speed"]
     accel = min([sp["accel"]] + ([sp["accel_range"][0]] if sp["accel_range"] else []))
     lo = min([sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else []))

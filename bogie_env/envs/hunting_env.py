@@ -150,12 +150,31 @@ class BogieHuntingEnv(gym.Env):
       "accuracy"`: decay rate and frequency of every lightly damped mode within 10 %, for every
       bogie the ranges can draw), not stability alone: 10 substeps of 1 ms instead of 2 of 5 ms.
 
+    ## Bogie/HuntingRoute-v1: curves
+
+    `Bogie/HuntingRoute-v1` (variant `v1_route`; `Bogie/HuntingRoutePassive-v1`: `v1_route_passive`)
+    is v1's world on the shipped routes (`configs/routes/`: `high-speed-7000`,
+    `conventional-1500`, `s-curve`; config `route.names`, one drawn per episode, or
+    `reset(options={"route": name, "route_copy": k, "start_kmh": v})`). An episode runs its route
+    at a constant speed drawn from the route's range (`route.speed_kmh`; 300-350, 160-190 and
+    230-260 km/h) and is truncated when the frame reaches the route's end. Curvature and cant
+    enter through the track samples with the alignment irregularity. The detector and the
+    lateral penalty read each wheelset's displacement about its mean over 10 m of track
+    (`hunting.detrend_m`), so the quasi-static offset in a curve is not hunting. Reward:
+    `progress x (1 - penalty)` with `progress = time_weight dt` (5.4 km/h per s) and the penalty
+    adding `wear_weight x min(mean wear number / wear_reference, 1)` and `flange_weight x` (share of
+    wheelsets in flange contact) to v1's terms (weights 0.3, 0.1, 0.1, 0.2, 0.2; reference 65 N).
+    Termination also when the largest wheel Y/Q over a 2 m sliding mean exceeds 0.8
+    (`curving.y_over_q_limit`). Info adds `wear_number_n` (2,), `flange_contact` (2,),
+    `y_over_q`, `guiding_force_n` (2,), `curvature_1pm`, `cant_deficiency_m`, `y_over_q_exceeded`.
+
     ## Version History
 
     - v0: initial version.
     - v1: sensor noise, bias and bandwidth; loop delay and force-rate limits; EN 13848-5 track
       levels; per-episode conicity, suspension, creep, axle load, actuator gain and faults;
-      converged integration.
+      converged integration. `Bogie/HuntingRoute-v1` (curves) is a variant of v1; the other v1
+      ids are unchanged bit for bit (`tests/test_v1_golden.py`).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # 1 / dt; set per instance

@@ -41,6 +41,10 @@ IDS: dict[str, str | None] = {
     "Bogie/HuntingPassive-v1": "v1_passive",
     "Bogie/HuntingSemiActive-v1": "v1_semi_active",
     "Bogie/HuntingSlowRamp-v1": "v1_slow_ramp",
+    # v1's world on the shipped routes (curves, transitions, cant) at their line speeds, with
+    # wear and flange contact in the reward and a Y/Q termination
+    "Bogie/HuntingRoute-v1": "v1_route",
+    "Bogie/HuntingRoutePassive-v1": "v1_route_passive",
 }
 
 

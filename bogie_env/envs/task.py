@@ -44,7 +44,7 @@ from ..actuators import (
     healthy_command,
     saturation,
 )
-from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _rhs_row, state_index
+from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, _rhs_row, state_index
 from ..integrate import FASTMATH, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, stable_substep
 from ..params import BogieParams, ConfigError
 from ..simulator import (
@@ -59,31 +59,44 @@ from ..simulator import (
     chunk_bounds,
     LoopChooser,
 )
-from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, TrackInput, alignment_profile, alignment_profile_at_level, perfect_track
+from ..analysis.curving import DETAIL_NAMES, FLANGE, GUIDING, Y_L, Y_R, wheelset_details, wheelset_wear_number
+from ..route import CANT_BASE_M, GRAVITY
+from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, CANT_FRAME, CURVATURE_FRAME, TrackInput, alignment_profile, alignment_profile_at_level, perfect_track
 from . import scenario as scenarios
 from .config import MAX_ACCEL, MAX_NUM_ENVS, bogie_params, make_config, max_steps_for
+from .routes import RouteLayout, build_layout
 from .sensors import N_SENSED, SENSOR_NAMES, draw_biases, sense_rows, sensor_table
 
 KMH = 3.6
 _FLOAT_TYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 # ---- the task's per-row arrays -----------------------------------------------------------------
-# hunting detector: exponentially weighted mean squares of the wheelsets' displacement
-# relative to the rail, and the onset speed (km/h, NaN until hunting)
-E_MEAN_SQUARE1, E_MEAN_SQUARE2, E_ONSET_KMH = range(3)
-N_EPISODE = 3
-FLAGS = ("terminated", "truncated", "hunting", "blowup")
-F_TERMINATED, F_TRUNCATED, F_HUNTING, F_BLOWUP = range(len(FLAGS))
-# info columns: speed, onset speed, the two wheelsets' rms, then per channel force and power
+# hunting detector: exponentially weighted mean squares of the wheelsets' displacement to the rail, and the onset speed (km/h, NaN until hunting)
+# relative to the rail, and the onset speed (km/h, NaN until hunting); with hunting.detrend also
+# their exponentially weighted means; on routes the sliding mean of the largest wheel Y/Q and
+# the distance where the episode's route ends (inf on straight track)
+E_MEAN_SQUARE1, E_MEAN_SQUARE2, E_ONSET_KMH, E_MEAN1, E_MEAN2, E_Y_OVER_Q, E_END_DISTANCE = range(7)
+N_EPISODE = 7
+FLAGS = ("terminated", "truncated", "hunting", "blowup", "y_over_q_exceeded")
+F_TERMINATED, F_TRUNCATED, F_HUNTING, F_BLOWUP, F_Y_OVER_Q = range(len(FLAGS))
+# info columns: speed, onset speed, the two wheelsets' rms, then per channel force and power;
+# then the curving quantities of the route variant (zero on straight track)
 I_SPEED_KMH, I_ONSET_KMH, I_RMS1, I_RMS2 = range(4)
 I_FORCE = 4
 I_POWER = I_FORCE + N_CHANNELS
-N_INFO = I_POWER + N_CHANNELS
+I_WEAR1 = I_POWER + N_CHANNELS  # wear number Tγ per wheelset, N
+I_FLANGE1 = I_WEAR1 + 2  # flange contact per wheelset (1/0)
+I_Y_OVER_Q = I_FLANGE1 + 2  # largest Y/Q of the four wheels now
+I_GUIDING1 = I_Y_OVER_Q + 1  # sum of guiding forces ΣY per wheelset, N
+I_CURVATURE = I_GUIDING1 + 2  # track curvature under the frame, 1/m (+ left)
+I_CANT_DEFICIENCY = I_CURVATURE + 1  # m, + unbalanced acceleration towards the outside of the curve
+N_INFO = I_CANT_DEFICIENCY + 1
 
 # ---- the task's settings, one float vector for the compiled code -------------------------------
 (C_OBS_STATE, C_OBS_ACT, C_W_LAT, C_W_YAW, C_W_EFF, C_W_TIME, C_YAW_REF, C_WINDOW_M, C_HUNT_RMS_FRACTION,
- C_BLOWUP, C_N_ACTIVE) = range(11)  # fmt: skip
-N_TASK_SETTINGS = 11
+ C_BLOWUP, C_N_ACTIVE, C_ROUTE, C_DETREND, C_W_WEAR, C_W_FLANGE, C_WEAR_REF, C_Y_OVER_Q_LIMIT,
+ C_Y_OVER_Q_WINDOW_M) = range(18)  # fmt: skip
+N_TASK_SETTINGS = 18
 
 # ---- observation ----------------------------------------------------------------------------------
 OBS_BOUND = 10.0
@@ -132,6 +145,19 @@ def _relative_lateral(x, track_sample):
 
 
 @njit(cache=True, inline="always")
+def _detrend(episode, y_rel1, y_rel2, v1, dt, cfg):
+    """hunting.detrend_m: update each wheelset's exponentially weighted mean displacement over
+    ``detrend_m`` of track and return the displacements about it (the quasi-static offset in a
+    curve removed); off (0): the displacements unchanged."""
+    if cfg[C_DETREND] <= 0.0:
+        return y_rel1, y_rel2
+    weight = 1.0 - math.exp(-dt * v1 / cfg[C_DETREND])
+    episode[E_MEAN1] += weight * (y_rel1 - episode[E_MEAN1])
+    episode[E_MEAN2] += weight * (y_rel2 - episode[E_MEAN2])
+    return y_rel1 - episode[E_MEAN1], y_rel2 - episode[E_MEAN2]
+
+
+@njit(cache=True, inline="always")
 def _detect_hunting(episode, y_rel1, y_rel2, v1, dt, delta, cfg):
     """Update the detector's mean squares over ``window_m`` of track; returns (rms1, rms2, hunting)."""
     weight = 1.0 - math.exp(-dt * v1 / cfg[C_WINDOW_M])
@@ -163,6 +189,61 @@ def _reward(x, y_rel1, y_rel2, v0, v1, dt, delta, u_end, channels, cfg):
     penalty = cfg[C_W_LAT] * lat_pen + cfg[C_W_YAW] * yaw_pen + cfg[C_W_EFF] * eff_pen
     progress = (v1 - v0) * 3.6 + cfg[C_W_TIME] * dt
     return progress * (1.0 - penalty)
+
+
+@njit(cache=True, inline="always")
+def _wear_penalty(wear1, wear2, cfg):
+    """The curving reward's wear term: min(mean wheelset wear number / wear_reference, 1), in [0, 1]."""
+    return min(0.5 * (wear1 + wear2) / cfg[C_WEAR_REF], 1.0)
+
+
+@njit(cache=True, inline="always")
+def _flange_penalty(flange1, flange2):
+    """The curving reward's flange term: the share of wheelsets in flange contact, in [0, 1]."""
+    return 0.5 * (flange1 + flange2)
+
+
+@njit(cache=True, inline="always")
+def _curving_reward(reward, wear1, wear2, flange1, flange2, progress, cfg):
+    """The route variant's reward: the hunting reward less progress x (w_wear x wear term +
+    w_flange x flange term), i.e. progress x (1 - all penalties)."""
+    return reward - progress * (cfg[C_W_WEAR] * _wear_penalty(wear1, wear2, cfg) + cfg[C_W_FLANGE] * _flange_penalty(flange1, flange2))
+
+
+@njit(cache=True, inline="always")
+def _curving_quantities(x, v1, track_sample, p, details, info):
+    """The wheel-rail quantities of a curving assessment at the end of the step into the info
+    row (wear number, flange contact, Y/Q, ΣY per wheelset; curvature and cant deficiency),
+    through :func:`bogie_env.analysis.curving.wheelset_details`. Returns the largest Y/Q."""
+    inv_v = 1.0 / v1
+    q = 0.5 * p[P_WPA]
+    y_over_q = -1e300
+    delta = p[P_DELTA]
+    for i in range(2):
+        row = details[i]
+        wheelset_details(x, inv_v, track_sample, p, i, row)
+        info[I_WEAR1 + i] = wheelset_wear_number(row)
+        y_rel = x[Y1 if i == 0 else Y2] - track_sample[ALIGNMENT_WHEELSET1 + i]
+        info[I_FLANGE1 + i] = 1.0 if abs(y_rel) >= delta else 0.0
+        info[I_GUIDING1 + i] = row[GUIDING]
+        y_over_q = max(y_over_q, row[Y_L] / q, row[Y_R] / q)
+    info[I_Y_OVER_Q] = y_over_q
+    kappa = track_sample[CURVATURE_FRAME]
+    equilibrium = CANT_BASE_M * math.sin(math.atan(v1 * v1 * kappa / GRAVITY))
+    cant = CANT_BASE_M * math.sin(track_sample[CANT_FRAME])
+    side = 1.0 if (kappa > 0.0 or (kappa == 0.0 and cant >= 0.0)) else -1.0
+    info[I_CURVATURE] = kappa
+    info[I_CANT_DEFICIENCY] = side * (equilibrium - cant)
+    return y_over_q
+
+
+@njit(cache=True, inline="always")
+def _y_over_q_exceeded(episode, y_over_q, v1, dt, cfg):
+    """Route termination: the largest wheel Y/Q, averaged over ``y_over_q_window_m`` of track
+    (exponentially weighted), above ``y_over_q_limit`` (a limit <= 0: never)."""
+    weight = 1.0 - math.exp(-dt * v1 / cfg[C_Y_OVER_Q_WINDOW_M])
+    episode[E_Y_OVER_Q] += weight * (y_over_q - episode[E_Y_OVER_Q])
+    return cfg[C_Y_OVER_Q_LIMIT] > 0.0 and episode[E_Y_OVER_Q] > cfg[C_Y_OVER_Q_LIMIT]
 
 
 @njit(cache=True, inline="always")
@@ -210,7 +291,7 @@ def _observe(obs, x, v1, p, track_sample, u_end, channels, cfg, state_scales, sc
 
 
 @njit(cache=True, inline="always")
-def _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch):
+def _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, details):
     """Detector, flags, reward, info and observation of row n after its interval."""
     x, motion, coefficients, _, _, _, output, track_sample, status = sim_rows
     episode, obs, reward, flags, info = task_rows
@@ -219,16 +300,28 @@ def _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch):
     delta = p[P_DELTA]
     v1 = m[M_SPEED]
     y_rel1, y_rel2 = _relative_lateral(x[n], track_sample[n])
-    rms1, rms2, hunting = _detect_hunting(episode[n], y_rel1, y_rel2, v1, dt, delta, cfg)
+    y_osc1, y_osc2 = _detrend(episode[n], y_rel1, y_rel2, v1, dt, cfg)
+    rms1, rms2, hunting = _detect_hunting(episode[n], y_osc1, y_osc2, v1, dt, delta, cfg)
     blowup = status[n] != STATUS_OK or abs(y_rel1) > cfg[C_BLOWUP] or abs(y_rel2) > cfg[C_BLOWUP]
-    terminated = hunting or blowup
-    truncated = (not terminated) and v1 >= m[M_END_SPEED] - 1e-9 and m[M_ACCEL] > 0.0
+    route = cfg[C_ROUTE] > 0.5
+    y_over_q_exceeded = False
+    if route and not blowup:
+        y_over_q = _curving_quantities(x[n], v1, track_sample[n], p, details, info[n])
+        y_over_q_exceeded = _y_over_q_exceeded(episode[n], y_over_q, v1, dt, cfg)
+    terminated = hunting or blowup or y_over_q_exceeded
+    truncated = (not terminated) and ((v1 >= m[M_END_SPEED] - 1e-9 and m[M_ACCEL] > 0.0)
+                                      or (route and m[M_DISTANCE] >= episode[n, E_END_DISTANCE]))  # fmt: skip
     flags[n, F_TERMINATED] = 1 if terminated else 0
     flags[n, F_TRUNCATED] = 1 if truncated else 0
     flags[n, F_HUNTING] = 1 if hunting else 0
     flags[n, F_BLOWUP] = 1 if blowup else 0
+    flags[n, F_Y_OVER_Q] = 1 if y_over_q_exceeded else 0
     u_end = output[n, OUT_FORCE]
-    rew = _reward(x[n], y_rel1, y_rel2, m[M_START_SPEED], v1, dt, delta, u_end, channels, cfg)
+    rew = _reward(x[n], y_osc1, y_osc2, m[M_START_SPEED], v1, dt, delta, u_end, channels, cfg)
+    if route and not blowup:
+        progress = (v1 - m[M_START_SPEED]) * 3.6 + cfg[C_W_TIME] * dt
+        rew = _curving_reward(rew, info[n, I_WEAR1], info[n, I_WEAR1 + 1], info[n, I_FLANGE1], info[n, I_FLANGE1 + 1],
+                              progress, cfg)  # fmt: skip
     reward[n] = rew if not blowup else 0.0
     _write_info(info[n], v1, episode[n, E_ONSET_KMH], rms1, rms2, output[n])
     _observe(obs[n], x[n], v1, p, track_sample[n], u_end, channels, cfg, state_scales, scratch)
@@ -246,8 +339,9 @@ def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_r
             healthy_command(health[n], k, command[n])
     advance_rows(start, stop, sim_rows, channels, track, dt, n_sub)
     scratch = np.empty((2, N_STATES))
+    details = np.empty((2, len(DETAIL_NAMES)))
     for n in range(start, stop):
-        _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch)
+        _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, details)
 
 
 @njit(cache=True, inline="always")
@@ -328,7 +422,10 @@ class HuntingTask:
             alignment = alignment_profile(tr["rms"], tr["wavelength_min"], tr["wavelength_max"], seed=tr["seed"])
         else:
             alignment = perfect_track()
-        self.track_input = TrackInput(alignment)
+        # route variant: the configured routes laid end to end on the one track (envs/routes.py)
+        self.route_layout: RouteLayout | None = build_layout(c["route"]) if c["route"]["names"] is not None else None
+        self.track_input = TrackInput(alignment) if self.route_layout is None else TrackInput(alignment, self.route_layout.track)
+        self.route_slot = np.full(n, -1, dtype=np.int64)  # each row's slot of the layout (-1: none)
         # actuator channels -> action columns
         self.active_channels = active_channels(c["actuators"])
         self.channel_names = tuple(CHANNEL_NAMES[k] for k in self.active_channels)
@@ -373,8 +470,16 @@ class HuntingTask:
         self.sensor_rng = np.zeros(n, dtype=np.uint64)
 
     # ---- configuration ----------------------------------------------------------------------
+    @property
+    def on_routes(self) -> bool:
+        """The route variant: episodes run routes at constant speed."""
+        return self.route_layout is not None
+
     def speed_limits(self) -> tuple[float, float]:
         """Lowest and highest speed (m/s) any episode can visit under this config."""
+        if self.route_layout is not None:
+            lo, hi = self.route_layout.speed_limits_kmh()
+            return lo / KMH, hi / KMH
         sp = self.config["speed"]
         lows = [sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else [])
         highs = [sp["end_kmh"]] + ([sp["end_kmh_range"][1]] if sp["end_kmh_range"] else [])
@@ -410,6 +515,12 @@ class HuntingTask:
         hu = c["hunting"]
         cfg[C_WINDOW_M], cfg[C_HUNT_RMS_FRACTION], cfg[C_BLOWUP] = hu["window_m"], hu["rms_fraction"], hu["blowup_m"]
         cfg[C_N_ACTIVE] = len(self.active_channels)
+        cfg[C_ROUTE] = 1.0 if c["route"]["names"] is not None else 0.0
+        cfg[C_DETREND] = hu["detrend_m"] if hu["detrend_m"] is not None else 0.0
+        cfg[C_W_WEAR], cfg[C_W_FLANGE], cfg[C_WEAR_REF] = rw["wear_weight"], rw["flange_weight"], rw["wear_reference"]
+        cu = c["curving"]
+        cfg[C_Y_OVER_Q_LIMIT] = cu["y_over_q_limit"] if cu["y_over_q_limit"] is not None else 0.0
+        cfg[C_Y_OVER_Q_WINDOW_M] = cu["y_over_q_window_m"]
         return cfg
 
     # ---- episodes -----------------------------------------------------------------------------
@@ -420,10 +531,14 @@ class HuntingTask:
     def reset_rows(self, rows: np.ndarray, options: Mapping[str, Any] | None = None) -> None:
         """Start new episodes in ``rows`` (their RNGs must already be seeded)."""
         options = dict(options or {})
-        allowed = ("start_kmh", "end_kmh", "accel", "params") + scenarios.OPTION_NAMES
+        route_options = ("route", "route_copy") if self.on_routes else ()
+        allowed = ("start_kmh", "end_kmh", "accel", "params") + route_options + scenarios.OPTION_NAMES
         unknown = set(options) - set(allowed)
         if unknown:
             raise ConfigError(f"unknown reset option(s) {sorted(unknown)}; allowed: {', '.join(allowed)}")
+        if self.on_routes and ("end_kmh" in options or "accel" in options):
+            raise ConfigError("reset options 'end_kmh' and 'accel' are not allowed on routes: an episode runs its route at the "
+                              "constant speed 'start_kmh' (default drawn from the route's range, config 'route.speed_kmh')")  # fmt: skip
         if not isinstance(options.get("params") or {}, Mapping):
             raise ConfigError(f"reset option 'params' = {options['params']!r} must be a mapping of parameter names "
                               "to scale factors, e.g. {'Csy': 0.5}")  # fmt: skip
@@ -432,9 +547,14 @@ class HuntingTask:
         rows = np.atleast_1d(rows)
         for i in rows:
             rng = self.rngs[i]
-            start = self._draw(rng, options.get("start_kmh"), sp["start_kmh"], sp["start_kmh_range"], "start_kmh")
-            end = self._draw(rng, options.get("end_kmh"), sp["end_kmh"], sp["end_kmh_range"], "end_kmh")
-            accel = self._draw(rng, options.get("accel"), sp["accel"], sp["accel_range"], "accel")
+            if self.on_routes:
+                slot = self._draw_slot(rng, options)
+                start = self._draw(rng, options.get("start_kmh"), 0.0, self.route_layout.speed_ranges_kmh[slot.route_index], "start_kmh")
+                end, accel = start, 0.0
+            else:
+                start = self._draw(rng, options.get("start_kmh"), sp["start_kmh"], sp["start_kmh_range"], "start_kmh")
+                end = self._draw(rng, options.get("end_kmh"), sp["end_kmh"], sp["end_kmh_range"], "end_kmh")
+                accel = self._draw(rng, options.get("accel"), sp["accel"], sp["accel_range"], "accel")
             if not 0.0 <= accel <= MAX_ACCEL:
                 raise ConfigError(f"reset option 'accel' = {accel:g} is not allowed; allowed: [0, {MAX_ACCEL:g}] m/s^2 "
                                   "(the speed ramps up from start_kmh to end_kmh, or stays constant)")  # fmt: skip
@@ -458,7 +578,10 @@ class HuntingTask:
                 offsets = rng.uniform(0.5, 1.0, 3) * size * rng.choice([-1.0, 1.0], 3)
             x[[Y1, Y2, YB]] += offsets
             x[[PSI1, PSI2, PSIB]] += yaws
-            distance = rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
+            if self.on_routes:
+                distance = slot.start_m
+            else:
+                distance = rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
             self.sim.set_rows(i, x, start / KMH, accel, distance, end_speed=end / KMH, coefficients=model.coefficients)
             self._set_health(i, scenario)
             if self.sensors_enabled:
@@ -467,6 +590,8 @@ class HuntingTask:
                 self.sensor_scale[i] = self._sensor_scales(model.coefficients[P_DELTA])
             self.episode[i] = 0.0
             self.episode[i, E_ONSET_KMH] = np.nan
+            self.episode[i, E_END_DISTANCE] = slot.end_m if self.on_routes else np.inf
+            self.route_slot[i] = self.route_layout.slots.index(slot) if self.on_routes else -1
             self.flags[i] = 0
             self.info[i] = 0.0
             self.info[i, I_SPEED_KMH] = start
@@ -476,6 +601,26 @@ class HuntingTask:
             sense_rows(rows.astype(np.int64), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
                        self.sensor_rng, self.sensor_table, True, OBS_BOUND)  # fmt: skip
         self._add_noise(rows)
+
+    def _draw_slot(self, rng: np.random.Generator, options: Mapping[str, Any]):
+        """The layout slot of a new route episode: the route (option 'route', else uniform over the
+        configured routes) and its copy (option 'route_copy', else uniform)."""
+        layout = self.route_layout
+        name = options.get("route")
+        k = layout.index(name) if name is not None else int(rng.integers(len(layout.routes)))
+        copies = self.config["route"]["copies"]
+        copy = options.get("route_copy")
+        if copy is None:
+            copy = int(rng.integers(copies))
+        elif isinstance(copy, bool) or not isinstance(copy, (int, np.integer)) or not 0 <= copy < copies:
+            raise ConfigError(f"reset option 'route_copy' = {copy!r} is not allowed; allowed: an integer in [0, {copies - 1}] "
+                              "(config 'route.copies')")  # fmt: skip
+        return layout.slot(k, int(copy))
+
+    def route_name(self, row: int = 0) -> str | None:
+        """The route of row's episode (None on straight track)."""
+        slot = self.route_slot[row]
+        return None if slot < 0 else self.route_layout.routes[self.route_layout.slots[slot].route_index].name
 
     def _set_health(self, i: int, scenario: "scenarios.Scenario") -> None:
         """Row i's actuator health; a stuck channel holds its command from the first step (its lag
@@ -622,6 +767,36 @@ class HuntingTask:
         return self.flags[:, F_BLOWUP].astype(bool)
 
     @property
+    def wear_number_n(self) -> np.ndarray:
+        """(N, 2) wear number Tγ of each wheelset at the end of the step, N (route variant; else 0)."""
+        return self.info[:, I_WEAR1 : I_WEAR1 + 2]
+
+    @property
+    def flange_contact(self) -> np.ndarray:
+        """(N, 2) each wheelset in flange contact at the end of the step (route variant)."""
+        return self.info[:, I_FLANGE1 : I_FLANGE1 + 2] > 0.5
+
+    @property
+    def y_over_q(self) -> np.ndarray:
+        """(N,) the largest wheel Y/Q at the end of the step (route variant)."""
+        return self.info[:, I_Y_OVER_Q]
+
+    @property
+    def guiding_force_n(self) -> np.ndarray:
+        """(N, 2) sum of guiding forces ΣY of each wheelset, N (route variant)."""
+        return self.info[:, I_GUIDING1 : I_GUIDING1 + 2]
+
+    @property
+    def curvature_1pm(self) -> np.ndarray:
+        """(N,) track curvature under the frame, 1/m, + left (route variant)."""
+        return self.info[:, I_CURVATURE]
+
+    @property
+    def cant_deficiency_m(self) -> np.ndarray:
+        """(N,) cant deficiency at the frame, m (+ towards the outside of the curve; route variant)."""
+        return self.info[:, I_CANT_DEFICIENCY]
+
+    @property
     def onset_speed_kmh(self) -> np.ndarray:
         """Speed where hunting was detected, km/h (NaN until then)."""
         return self.info[:, I_ONSET_KMH]
@@ -678,6 +853,21 @@ class HuntingTask:
             "actuator_force": info[I_FORCE : I_FORCE + N_CHANNELS],
             "actuator_power": info[I_POWER : I_POWER + N_CHANNELS],
             "blowup": bool(flags[F_BLOWUP]),
+            **(self._curving_info(info, flags) if self.on_routes else {}),
+        }
+
+    @staticmethod
+    def _curving_info(info: np.ndarray, flags: list) -> dict[str, Any]:
+        """The route variant's info: curving quantities at the end of the step (see
+        ``BogieHuntingEnv``, "Bogie/HuntingRoute-v1")."""
+        return {
+            "wear_number_n": info[I_WEAR1 : I_WEAR1 + 2],
+            "flange_contact": info[I_FLANGE1 : I_FLANGE1 + 2] > 0.5,
+            "y_over_q": float(info[I_Y_OVER_Q]),
+            "guiding_force_n": info[I_GUIDING1 : I_GUIDING1 + 2],
+            "curvature_1pm": float(info[I_CURVATURE]),
+            "cant_deficiency_m": float(info[I_CANT_DEFICIENCY]),
+            "y_over_q_exceeded": bool(flags[F_Y_OVER_Q]),
         }
 
     def batched_infos(self) -> dict[str, np.ndarray]:
@@ -691,6 +881,16 @@ class HuntingTask:
             "actuator_power": self.actuator_power.copy(),
             "blowup": self.blowup,
         }
+        if self.on_routes:
+            values.update({
+                "wear_number_n": self.wear_number_n.copy(),
+                "flange_contact": self.flange_contact.copy(),
+                "y_over_q": self.info[:, I_Y_OVER_Q].copy(),
+                "guiding_force_n": self.guiding_force_n.copy(),
+                "curvature_1pm": self.info[:, I_CURVATURE].copy(),
+                "cant_deficiency_m": self.info[:, I_CANT_DEFICIENCY].copy(),
+                "y_over_q_exceeded": self.flags[:, F_Y_OVER_Q].astype(bool),
+            })  # fmt: skip
         mask = np.ones(self.num_envs, dtype=bool)
         out: dict[str, np.ndarray] = {}
         for key, value in values.items():
