@@ -133,7 +133,9 @@ def _interpolate(profile, inv_dx, s):
     k = math.floor(u)
     w = u - k
     i0 = int(k) % m
-    i1 = (i0 + 1) % m
+    i1 = i0 + 1  # (i0 + 1) % m without a second integer division
+    if i1 == m:
+        i1 = 0
     return (1.0 - w) * profile[i0] + w * profile[i1]
 
 
