@@ -201,6 +201,8 @@ class Assessment:
     blowup: np.ndarray
     sum_y_limit_n: np.ndarray
     frame_accel_limit: float
+    mean_offset: np.ndarray | None = None  # largest |mean wheelset displacement relative to the rail| / delta
+
 
     def failed_by(self, i: int, flange_time_limit: float) -> list[str]:
         """Which criteria run i fails."""
@@ -217,7 +219,8 @@ class Assessment:
 
 
 def assess(history: np.ndarray, flange_time: np.ndarray, blowup: np.ndarray, speeds_ms: np.ndarray, dt: float,
-           axle_load_n: np.ndarray, frame_mass_kg: float, settings: Settings) -> Assessment:  # fmt: skip
+           axle_load_n: np.ndarray, frame_mass_kg: float, settings: Settings,
+           mean_offset: np.ndarray | None = None) -> Assessment:  # fmt: skip
     """The pass criterion for N runs. ``history`` (N, 3, T): ΣY of wheelset 1 and 2 (N) and the
     frame lateral acceleration (m/s²) over the evaluated time, sampled every ``dt``;
     ``flange_time`` (N,) and ``blowup`` (N,) as measured during it."""
@@ -239,7 +242,8 @@ def assess(history: np.ndarray, flange_time: np.ndarray, blowup: np.ndarray, spe
         rms = sliding_rms(filtered, window, step).max(axis=-1)
         sum_y[i], accel[i] = rms[:2].max(), rms[2]
     passed = ~blown & (sum_y <= y_limit) & (accel <= a_limit) & (np.asarray(flange_time) <= settings.flange_time_limit)
-    return Assessment(passed, sum_y, accel, np.asarray(flange_time, dtype=float), f0, blown, y_limit, a_limit)
+    return Assessment(passed, sum_y, accel, np.asarray(flange_time, dtype=float), f0, blown, y_limit, a_limit,
+                      None if mean_offset is None else np.asarray(mean_offset, dtype=float))
 
 
 def criterion_text(settings: Settings, axle_load_n: float, frame_mass_kg: float) -> dict[str, Any]:
@@ -443,7 +447,7 @@ class Runner:
         for i, (case, v) in enumerate(zip(cases, speeds)):
             task.reset_rows(np.array([i]), {**case.options, "start_kmh": float(v), "end_kmh": float(v), "accel": 0.0})
         told = np.array([told_conicity(c.conicity, s.conicities) for c in cases])
-        groups = [(np.nonzero(told == lam)[0], ctx.policy(float(lam))) for lam in np.unique(told)]
+        groups = [(np.nonzero(told == lam)[0], ctx.reused_policy(float(lam), loop)) for lam in np.unique(told)]
         policy = RowGroups(groups, task.action_dim)
         policy.reset(len(cases))
         return task, policy
@@ -463,6 +467,7 @@ class Runner:
         first = int(round(s.transient_s / dt))
         history = np.zeros((n, 3, steps - first), dtype=np.float32)
         contact = np.zeros(n)
+        offset = np.zeros((n, 2))
         blowup = np.zeros(n, dtype=bool)
         buffers = {loop: np.zeros((idx.size, 3)) for loop, (idx, _, _) in loops.items()}
         for k in range(steps):
@@ -477,7 +482,9 @@ class Runner:
                 if k >= first:
                     running_signals_rows(task.sim.rows, buffers[loop])
                     history[idx, :, k - first] = buffers[loop]
-                    contact[idx] += np.any(np.abs(task.relative_lateral_m) >= task.flange_clearance[:, None], axis=1)
+                    relative = task.relative_lateral_m
+                    contact[idx] += np.any(np.abs(relative) >= task.flange_clearance[:, None], axis=1)
+                    offset[idx] += relative / task.flange_clearance[:, None]
             if k % 100 == 99:
                 done = self.row_steps_done + n * (k + 1)
                 self.progress.report(f"{what}: {k + 1}/{steps} steps of {n} rows", done,
@@ -487,10 +494,16 @@ class Runner:
         for loop, (idx, task, _) in loops.items():
             axle[idx] = [task.scenarios[i].axle_load * task.base_params.Wpa for i in range(idx.size)]
         frame_mass = next(iter(loops.values()))[1].base_params.mb
-        return assess(history, contact / (steps - first), blowup, speeds_kmh / 3.6, dt, axle, frame_mass, s)
+        mean_offset = np.abs(offset / (steps - first)).max(axis=1)
+        return assess(history, contact / (steps - first), blowup, speeds_kmh / 3.6, dt, axle, frame_mass, s, mean_offset)
 
 
 # ---- the critical-speed search -------------------------------------------------------------------
+def _value(result: Assessment, key: str, row: int) -> float:
+    values = getattr(result, key)
+    return float(values[row]) if values is not None else math.nan
+
+
 def search(runner: Runner, cases: list[Case]) -> dict[str, np.ndarray]:
     """Per-case critical speed: coarse grid for every case, then per-case bisection; every round
     is one batch of rows."""
@@ -511,13 +524,13 @@ def search(runner: Runner, cases: list[Case]) -> dict[str, np.ndarray]:
     first_fail = top_pass + 1  # the grid index where the search brackets the boundary
     failed_by: list[list[str]] = [[] for _ in range(m)]
     sample = {"f0_hz": np.full(m, np.nan), "sum_y_rms_n": np.full(m, np.nan), "frame_accel_rms": np.full(m, np.nan),
-              "flange_time": np.full(m, np.nan)}  # fmt: skip
+              "flange_time": np.full(m, np.nan), "mean_offset": np.full(m, np.nan)}  # fmt: skip
     for i in range(m):  # what the failing speed above the boundary fails by
         if first_fail[i] < grid.size:
             r = i * grid.size + first_fail[i]
             failed_by[i] = result.failed_by(r, s.flange_time_limit)
             for key in sample:
-                sample[key][i] = getattr(result, key)[r]
+                sample[key][i] = _value(result, key, r)
     round_no = 0
     while True:
         active = np.nonzero(np.isfinite(lo) & np.isfinite(hi) & (hi - lo > s.tol_kmh))[0]
@@ -534,7 +547,7 @@ def search(runner: Runner, cases: list[Case]) -> dict[str, np.ndarray]:
                 hi[i] = mid[a]
                 failed_by[i] = r.failed_by(a, s.flange_time_limit)
                 for key in sample:
-                    sample[key][i] = getattr(r, key)[a]
+                    sample[key][i] = _value(r, key, a)
     critical = np.where(np.isnan(lo), grid[0], lo)
     bound = np.where(first_fail == grid.size, "at_least", np.where(first_fail == 0, "at_most", "bisected"))
     return {"critical_kmh": critical, "bound": bound, "non_monotonic": non_monotonic, "failed_by": failed_by,
@@ -570,7 +583,9 @@ def column_result(cases: list[Case], found: dict[str, Any], idx: np.ndarray, set
         out["worst_seed_at_failure"] = {"f0_hz": round(float(at["f0_hz"][idx[worst]]), 2),
                                         "sum_y_rms_kn": round(float(at["sum_y_rms_n"][idx[worst]]) / 1e3, 2),
                                         "frame_accel_rms_m_per_s2": round(float(at["frame_accel_rms"][idx[worst]]), 2),
-                                        "flange_time": round(float(at["flange_time"][idx[worst]]), 4)}  # fmt: skip
+                                        "flange_time": round(float(at["flange_time"][idx[worst]]), 4),
+                                        # a steady offset (e.g. from sensor bias) rather than an oscillation
+                                        "mean_offset_over_clearance": round(float(at["mean_offset"][idx[worst]]), 3)}  # fmt: skip
     if cases[idx[worst]].scenario is not None:
         out["worst_scenario"] = cases[idx[worst]].scenario
     return out
@@ -588,6 +603,7 @@ class PartContext:
     observation_type: str
     progress: Progress
     n_sub: int | None = None  # the integration substeps of the protocol's tasks, once chosen
+    _policies: dict = field(default_factory=dict)
 
     def task(self, n: int, config: dict) -> HuntingTask:
         """A task of the protocol (every task takes the substeps the first one chose: choosing
@@ -602,6 +618,15 @@ class PartContext:
     def policy(self, conicity: float | None = None) -> Any:
         """A fresh policy built for the env config (and, if given, told this conicity)."""
         return self.factory(policy_config(self.env_config, self.observation_type, conicity))
+
+    def reused_policy(self, conicity: float, slot: str) -> Any:
+        """The policy told ``conicity`` for one concurrent use ``slot``, built once and reused
+        (every use starts with ``reset(n)``, which clears a controller's whole state; designing
+        LQG takes seconds per conicity)."""
+        key = (round(conicity, 12), slot)
+        if key not in self._policies:
+            self._policies[key] = self.policy(conicity)
+        return self._policies[key]
 
 
 PartFunction = Callable[[PartContext], dict]
