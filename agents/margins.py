@@ -1,39 +1,51 @@
-"""Stability margins of any controller in the hunting loop, learned or not.
+"""Stability margins of any controller in the hunting loop, learned or not (v0 and v1 tasks).
 
 The closed loop is linearised at a fixed speed on straight, perfect track, about its
 equilibrium, and analysed as the discrete-time system it is: the env applies one action per
 control interval ``dt`` (10 ms) and holds it (zero-order hold) into the actuators' first-order
 lag. The linear model is exact for that sampled loop; no Padé approximation is needed, because
-the existing command delay is a whole number of intervals (a shift register).
+the config's command delay is a whole number of intervals (a shift register per channel).
 
 Pieces (all discrete at ``dt``):
 
 - **Plant** (:func:`plant_model`): the bogie's exact Jacobian at the equilibrium
-  (:meth:`BogieModel.jacobian`), its input matrix, the channel-to-generalised-force map
-  (wheelset torques react on the frame), the actuators' lags ``dF/dt = w (u F_max - F)``,
-  discretised exactly with the block exponential; then the command delay (``delay_steps``) and
-  the env's observation (sensors or full state, with the env's scalings).
-- **Controller** (:func:`controller_model`): a discrete state space ``c+ = Ac c + Bc y``,
-  ``u = Cc c + Dc y`` from the observation ``y`` to the normalised command ``u``. Skyhook, LQR
-  and LQG from their own matrices (LQG with its Kalman filter states); SB3 policies by the
-  derivative of the deterministic action through the VecNormalize scaling and clipping (torch
-  autograd, checked against finite differences); any other stateless policy by finite
-  differences of ``act``.
+  (:meth:`BogieModel.jacobian`; :func:`plant_bogie` puts a chosen conicity into ``lam``), its
+  input matrix, the channel-to-generalised-force map (wheelset torques react on the frame), the
+  actuators' lags ``dF/dt = w (u F_max - F)``, discretised exactly with the block exponential;
+  each channel's command delay (``delay_steps``); the env's observation (sensors or full state,
+  with the env's scalings) and, with ``sensors.enabled`` (v1), the sensors' first-order
+  anti-alias filters exactly as the env applies them to the samples
+  (:func:`sensor_filters`). Noise and bias do not enter; the force-rate limit never binds at
+  small amplitude and is left out.
+- **Controller** (:func:`controller_model`): a discrete state space
+  (:class:`bogie_agents.linear_models.ControllerModel`) from the observation to the normalised
+  command. A policy's own ``controller_model(n_obs, speed_kmh, y0)`` method first; then
+  skyhook, LQR and LQG from their own matrices (LQG with its Kalman filter states); SB3
+  policies by the derivative of the deterministic action through the VecNormalize scaling and
+  clipping (torch autograd, checked against finite differences); any other stateless policy
+  by finite differences of ``act``.
 - **Margins** (:func:`loop_margins`): loop at a time, broken at each actuator command with the
   other loops closed: upper and lower gain margin, phase margin, delay margin, disk margin; and
   the disk margin for simultaneous perturbations of all loops. python-control computes them
   (``stability_margins`` on the frequency response up to the Nyquist frequency,
-  ``disk_margins``).
+  ``disk_margins``). The closed-loop eigenvalues check the delay margins: whole extra steps per
+  loop and in all loops at once, and the exact sampled model of a fractional delay
+  (:meth:`PlantModel.with_delay_s`).
 
 Conventions: a loop's gain margin is the factor by which its command may be scaled before the
 loop goes unstable (``gain_margin`` above 1, ``gain_margin_lower`` below 1; 0 when any gain down
-to zero is stable). The delay margin is the extra pure delay (s), beyond the delay already in
-the loop, at which the loop goes unstable: the least ``phase margin / crossover frequency`` over
-the gain crossovers. Margins are meaningful only when the nominal closed loop is stable
-(``closed_loop_stable``); otherwise they are reported as None.
+to zero is stable). The delay margin is the extra pure delay (s), beyond the delay the config
+already has (``existing_delay_s``; v1: 10 ms), at which the loop goes unstable: the least
+``phase margin / crossover frequency`` over the gain crossovers (``delay_margin_s``), exact at
+whole steps; ``delay_margin_sampled_s`` is the exact figure between them. Margins are
+meaningful only when the nominal closed loop is stable (``closed_loop_stable``); otherwise
+they are reported as None.
 
-:func:`simulate_loop` is the nonlinear oracle: the same controller on the compiled nonlinear
-bogie, with per-loop gain factors and extra delays (to a fraction of ``dt``).
+Oracles: :func:`simulate_loop`, the same controller on the compiled nonlinear bogie with
+per-loop gain factors and extra delays (to a fraction of ``dt``), and :func:`simulate_env`,
+the env's own task (``HuntingTask``) under :func:`quiet_env_config`.
+
+Entry point: :func:`margins_table` ``(policy, env_config, speeds_kmh, conicity=None)``.
 """
 
 from __future__ import annotations

@@ -497,6 +497,7 @@ def test_cli_margins_bad_conicity_is_named(capsys):
     assert "--conicity" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_v1_lqg_margins_hold_in_nonlinear_simulation(v1_config, v1_lqg, v1_lqg_loop, v1_lqg_margins):
     """v1 (one step of delay, sensor filters in simulate_loop as in the env): the worst loop at
     0.9 / 1.1 x its gain margin and 0.9 / 1.1 x its delay margin (to 1 ms) decays / grows."""
