@@ -458,7 +458,7 @@ def test_residual_policy_model(v1_config, v1_lqg):
     from bogie_agents.linear_models import residual_controller_model, sb3_jacobian_autograd
     from bogie_agents.policies import load_policy
 
-    ppo = load_policy("pretrained", v1_config)
+    ppo = load_policy("pretrained", make_config())  # the shipped v0 PPO: v1 keeps v0's spaces
 
     class Residual(LQGController):
         scale = 0.2
