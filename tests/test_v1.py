@@ -298,8 +298,9 @@ def test_evaluate_names_the_env_it_ran(capsys):
 
     with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as handle:
         yaml.safe_dump(env_config, handle)
-    assert main(["evaluate", "--env", "Bogie/HuntingPassive-v1", "--env-config", handle.name, "--policy", "passive",
+    # protocol v1's ramp part (v0 ids): the JSON names the env and its version
+    assert main(["evaluate", "--env", "Bogie/HuntingPassive-v0", "--env-config", handle.name, "--policy", "passive",
                  "--parts", "ramp", "--json"]) == 0  # fmt: skip
     payload = json.loads(capsys.readouterr().out)
-    assert payload["env_id"] == "Bogie/HuntingPassive-v1" and payload["env_version"] == "v1"
+    assert payload["env_id"] == "Bogie/HuntingPassive-v0" and payload["env_version"] == "v0"
     assert payload["policies"][0]["ramp"]["start_kmh"] == 300.0
