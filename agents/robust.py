@@ -518,9 +518,38 @@ def report(env_config: dict) -> str:
     return "\n".join(lines)
 
 
+def ramp_onsets(spec: str, env_config: dict, conicity: float, seeds: int = 10) -> dict:
+    """The v1 ramp (the env config's speed ramp and world; pass one without randomisation) with
+    the conicity pinned by ``reset(options={"conicity": c})``, seeds 0..seeds-1: each seed's onset
+    of the env's hunting criterion (None: reached the end speed) and the peak channel forces."""
+    from bogie_env.envs.task import HuntingTask
+
+    from .policies import load_policy
+
+    policy = load_policy(spec, env_config)
+    task = HuntingTask(seeds, env_config)
+    rows = np.arange(seeds)
+    task.seed_rows(rows, list(range(seeds)))
+    task.reset_rows(rows, {"conicity": conicity})
+    policy.reset(seeds)
+    done = np.zeros(seeds, dtype=bool)
+    onset = np.full(seeds, np.nan)
+    peak = np.zeros(len(CHANNEL_NAMES))
+    while not done.all():
+        task.step(policy.act(task.obs))
+        live = ~done
+        peak = np.maximum(peak, np.abs(task.actuator_force[live]).max(axis=0))
+        finished = live & task.done
+        onset[finished] = task.onset_speed_kmh[finished]
+        done |= finished
+    return {"policy": spec, "conicity": conicity, "onset_kmh": [None if np.isnan(v) else round(float(v), 1) for v in onset],
+            "peak_force": [round(float(v)) for v in peak]}  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m bogie_agents.robust design [--out FILE]``: design the gain table for the v1 env;
-    ``python -m bogie_agents.robust report``: its linear onsets by conicity and its margins."""
+    ``python -m bogie_agents.robust report``: its linear onsets by conicity and its margins;
+    ``python -m bogie_agents.robust ramp --policy NAME``: onsets on the v1 ramp by conicity."""
     import argparse
     import sys
     import time
@@ -528,13 +557,25 @@ def main(argv: list[str] | None = None) -> None:
     from bogie_env.envs.config import make_config
 
     parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("what", choices=("design", "report"))
+    parser.add_argument("what", choices=("design", "report", "ramp"))
+    parser.add_argument("--policy", action="append", help="ramp: policy names (default: passive and robust_damping)")
+    parser.add_argument("--conicities", default="0.025,0.05,0.1,0.2,0.3", help="ramp: comma-separated conicities")
+    parser.add_argument("--seeds", type=int, default=10, help="ramp: seeds 0..N-1")
     parser.add_argument("--out", default=str(GAINS_FILE))
     parser.add_argument("--variant", default="v1")
     args = parser.parse_args(argv)
     config = make_config({"randomize": {}}, variant=args.variant)
     if args.what == "report":
         print(report(config))
+        return
+    if args.what == "ramp":
+        for spec in args.policy or ["passive", "robust_damping"]:
+            for c in (float(v) for v in args.conicities.split(",")):
+                r = ramp_onsets(spec, config, c, args.seeds)
+                hunted = [v for v in r["onset_kmh"] if v is not None]
+                span = f"{min(hunted):g} / {float(np.median(hunted)):g} / {max(hunted):g}" if hunted else "none"
+                print(f"{spec} conicity {c:g}: hunted {len(hunted)}/{args.seeds}, onset min / median / max {span} km/h; "
+                      f"onsets {r['onset_kmh']}; peak forces {r['peak_force']}", flush=True)  # fmt: skip
         return
     start = time.time()
     settings = DesignSettings()
