@@ -546,10 +546,53 @@ def ramp_onsets(spec: str, env_config: dict, conicity: float, seeds: int = 10) -
             "peak_force": [round(float(v)) for v in peak]}  # fmt: skip
 
 
+def route_run(spec: str, env_config: dict, steps: int = 6000, seeds: int = 6) -> dict:
+    """Closed-loop curving on a route env config (e.g. the ``v1_route`` variant without
+    randomisation), seeds 0..seeds-1, rows counted until their episode ends: mean wear number
+    (all, and where the frame is in a curve), flange-contact fraction, largest Y/Q, and each
+    channel's mean force signed by the curve's direction and mean |force| in curves."""
+    from bogie_env.envs.task import HuntingTask
+
+    from .policies import load_policy
+
+    policy = load_policy(spec, env_config)
+    task = HuntingTask(seeds, env_config)
+    rows = np.arange(seeds)
+    task.seed_rows(rows, list(range(seeds)))
+    task.reset_rows(rows)
+    policy.reset(seeds)
+    alive = np.ones(seeds, dtype=bool)
+    wear = flange = count = wear_curve = count_curve = 0.0
+    y_over_q = 0.0
+    signed, absolute, n_curve = np.zeros(len(CHANNEL_NAMES)), np.zeros(len(CHANNEL_NAMES)), 0
+    for _ in range(steps):
+        task.step(policy.act(task.obs))
+        live = alive.copy()
+        curve = live & (np.abs(task.curvature_1pm) > 1e-5)
+        wear += task.wear_number_n[live].sum()
+        flange += task.flange_contact[live].sum()
+        count += 2 * live.sum()
+        wear_curve += task.wear_number_n[curve].sum()
+        count_curve += 2 * curve.sum()
+        if live.any():
+            y_over_q = max(y_over_q, float(task.y_over_q[live].max()))
+        signed += (task.actuator_force[curve] * np.sign(task.curvature_1pm[curve])[:, None]).sum(axis=0)
+        absolute += np.abs(task.actuator_force[curve]).sum(axis=0)
+        n_curve += int(curve.sum())
+        alive &= ~task.done
+        if not alive.any():
+            break
+    return {"policy": spec, "mean_wear_number_n": wear / max(count, 1), "mean_wear_number_in_curves_n": wear_curve / max(count_curve, 1),
+            "flange_contact_fraction": flange / max(count, 1), "max_y_over_q": y_over_q,
+            "mean_signed_force_in_curves": (signed / max(n_curve, 1)).round(0).tolist(),
+            "mean_abs_force_in_curves": (absolute / max(n_curve, 1)).round(0).tolist()}  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m bogie_agents.robust design [--out FILE]``: design the gain table for the v1 env;
     ``python -m bogie_agents.robust report``: its linear onsets by conicity and its margins;
-    ``python -m bogie_agents.robust ramp --policy NAME``: onsets on the v1 ramp by conicity."""
+    ``python -m bogie_agents.robust ramp --policy NAME``: onsets on the v1 ramp by conicity;
+    ``python -m bogie_agents.robust route``: closed-loop curving on the v1 route variant."""
     import argparse
     import sys
     import time
@@ -557,16 +600,23 @@ def main(argv: list[str] | None = None) -> None:
     from bogie_env.envs.config import make_config
 
     parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("what", choices=("design", "report", "ramp"))
+    parser.add_argument("what", choices=("design", "report", "ramp", "route"))
+    parser.add_argument("--steps", type=int, default=6000, help="route: env steps per episode at most")
     parser.add_argument("--policy", action="append", help="ramp: policy names (default: passive and robust_damping)")
     parser.add_argument("--conicities", default="0.025,0.05,0.1,0.2,0.3", help="ramp: comma-separated conicities")
-    parser.add_argument("--seeds", type=int, default=10, help="ramp: seeds 0..N-1")
+    parser.add_argument("--seeds", type=int, default=10, help="ramp, route: seeds 0..N-1")
     parser.add_argument("--out", default=str(GAINS_FILE))
     parser.add_argument("--variant", default="v1")
     args = parser.parse_args(argv)
     config = make_config({"randomize": {}}, variant=args.variant)
     if args.what == "report":
         print(report(config))
+        return
+    if args.what == "route":
+        route_config = make_config({"randomize": {}}, variant="v1_route")
+        for spec in args.policy or ["passive", "robust_damping"]:
+            r = route_run(spec, route_config, args.steps, args.seeds)
+            print(" ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in r.items()), flush=True)
         return
     if args.what == "ramp":
         for spec in args.policy or ["passive", "robust_damping"]:
