@@ -421,11 +421,13 @@ def tune(env_config: dict, settings: DesignSettings | None = None, progress=None
             g = x.reshape(len(CHANNEL_NAMES), N_SIG) * GAIN_SCALE
             worst = -math.inf
             for p, p_late in plants:
-                for f in settings.gain_factors:
-                    worst = max(worst, mode_score(closed_loop(p, bank, g, f), env_config["dt"], settings.min_mode_hz, settings.max_radius))
+                loops = [closed_loop(p, bank, g, f) for f in settings.gain_factors]
                 if settings.extra_delay_steps:
-                    worst = max(worst, mode_score(closed_loop(p_late, bank, g), env_config["dt"], settings.min_mode_hz, settings.max_radius))
-            return worst + settings.smoothness * float(np.sum((x - previous) ** 2)) + settings.shrinkage * float(np.sum(x**2))
+                    loops.append(closed_loop(p_late, bank, g))
+                for a_cl in loops:
+                    worst = max(worst, mode_score(a_cl, env_config["dt"], settings.min_mode_hz, settings.max_radius))
+            smooth = settings.smoothness * float(np.sum((x - previous) ** 2))
+            return worst + smooth + settings.shrinkage * float(np.sum(x**2))
 
         simplex = np.vstack([x] + [x + 0.3 * e for e in np.eye(x.size)])
         result = minimize(objective, x, method="Nelder-Mead", options={"maxfev": settings.max_evaluations, "xatol": 1e-3,
