@@ -102,7 +102,7 @@ def _env_variant(env_id: str) -> str | None:
 @argument("--out", default=None, help="write the JSON result here as well (atomically)")
 @argument("--parts", default=None,
           help="which parts of the protocol to run. Protocol v2 (-v1 ids): critical, cost (default: both), margins, "
-               "and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
+               "ramp and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
 @argument("--env", default="Bogie/Hunting-v1",

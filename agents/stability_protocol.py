@@ -52,7 +52,8 @@ a model-based controller (LQR, LQG) is gain-scheduled on that conicity; it is to
 about degraded parts, faults or the extra delay. A learned policy ignores its config.
 
 **Parts** are a registry (:data:`PARTS`, :func:`register_part`): ``critical`` (all the columns
-above), ``cost`` and ``margins`` (:func:`bogie_agents.margins.margins_table`). Another module
+above), ``cost``, ``margins`` (:func:`bogie_agents.margins.margins_table`) and ``ramp`` (the
+env's own episode over 5 seeds, protocol v1's ramp onset). Another module
 adds a part by decorating ``fn(ctx: PartContext) -> dict`` with ``@register_part("name")``;
 the dict is merged into the controller's result. A module in :data:`PART_MODULES` is imported
 before the registry is read, so its parts are available to ``bogie evaluate --parts``
@@ -768,6 +769,16 @@ def margins_part(ctx: PartContext) -> dict[str, Any]:
     from .margins import margins_table
 
     return {"margins": margins_table(ctx.policy(), ctx.env_config, list(ctx.settings.margin_speeds_kmh))}
+
+
+@register_part("ramp")
+def ramp_part(ctx: PartContext) -> dict[str, Any]:
+    """The env's own episode (its speed ramp, randomisation and hunting detector) over seeds:
+    protocol v1's ramp onset (:func:`bogie_agents.evaluate.ramp_onset`) on the v1 config."""
+    from .evaluate import ProtocolSettings, ramp_onset
+
+    config = policy_config(ctx.env_config, ctx.observation_type)
+    return {"ramp": ramp_onset(ctx.policy(), config, ProtocolSettings(seed=ctx.settings.seed))}
 
 
 # ---- the protocol ---------------------------------------------------------------------------------
