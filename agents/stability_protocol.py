@@ -633,8 +633,9 @@ class PartContext:
 PartFunction = Callable[[PartContext], dict]
 #: The protocol's parts, in their default order: name -> function(ctx) -> dict merged into the result.
 PARTS: dict[str, PartFunction] = {}
-#: Modules that register more parts when imported (e.g. a curving part); imported lazily.
-PART_MODULES: tuple[str, ...] = ()
+#: Modules that register more parts when imported; imported lazily. ``curving``: the curving
+#: columns on the shipped routes (:mod:`bogie_agents.curving_evaluation`).
+PART_MODULES: tuple[str, ...] = ("bogie_agents.curving_evaluation",)
 DEFAULT_PARTS = ("critical", "cost")
 
 

@@ -2,8 +2,8 @@
 limit and the curving reward against independent evaluations.
 
 Planted bugs each test catches (checked by hand, docs/environment.md): the curvature sign
-flipped in ``analysis.curving.wheelset_details`` (wear oracle and mirror test); the cant left out of the
-track samples (geometry test); the detrended detector on straight track (straight-limit test).
+flipped in ``analysis.curving.wheelset_details`` (wear oracle); the cant left out of the info's
+cant deficiency (geometry test).
 """
 
 from pathlib import Path
@@ -71,6 +71,10 @@ def test_route_episode_runs_its_route_and_the_track_input_matches_the_geometry()
             assert sample[column] == pytest.approx(route.curvature(s + offset), rel=1e-9, abs=1e-15)
         for column, offset in ((CANT_WHEELSET1, L1), (CANT_WHEELSET2, -L1), (CANT_FRAME, 0.0)):
             assert np.sin(sample[column]) * CANT_BASE_M == pytest.approx(route.cant(s + offset), rel=1e-9, abs=1e-15)
+        kappa, cant = float(route.curvature(s)), float(route.cant(s))
+        if kappa != 0.0:  # the info's cant deficiency: equilibrium cant (EN 13803's base) minus the cant
+            equilibrium = CANT_BASE_M * np.sin(np.arctan(50.0**2 * kappa / 9.81))
+            assert task.cant_deficiency_m[0] == pytest.approx(np.sign(kappa) * (equilibrium - cant), rel=1e-9)
     assert task.curvature_1pm[0] == sample[CURVATURE_FRAME] < 0  # the info reads the frame's sample (a right-hand curve)
 
 
