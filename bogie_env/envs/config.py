@@ -328,9 +328,9 @@ VARIANTS.update({
 #: of the reward and termination (docs/environment.md, "Bogie/HuntingRoute-v1").
 #: time_weight 5.4 (km/h per s): a step alive pays what a step of v1's 1.5 m/s^2 ramp pays.
 #: The lateral penalty and the detector read the displacement about its mean over 10 m of track
-#: (hunting.detrend_m): a first-order high-pass that passes hunting (wavelengths below 25 m) with
-#: at least 93 % of its amplitude and lags a transition's ramp of the curving offset (10 mm
-#: over 180 m) by 0.6 mm.
+#: (hunting.detrend_m): a first-order high-pass that lags a transition's ramp of the curving
+#: offset (10 mm over 180 m) by 0.6 mm and keeps 81-94 % of the amplitude of this model's 2-4 Hz
+#: hunting at 330 km/h (docs/environment.md).
 ROUTE_NAMES = ["high-speed-7000", "conventional-1500", "s-curve"]
 _ROUTE_EXTRA: dict[str, Any] = {
     "route": {"names": ROUTE_NAMES, "copies": 8},
