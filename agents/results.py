@@ -269,6 +269,12 @@ def v2_table(results: list[dict]) -> str:
     notes.append("† a seed also fails at a grid speed below this value (fails_below_kmh in results.json).")
     if dropped:
         notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
+    curving = [{"policy": r["policy"], **r["curving"]} for r in results if r.get("curving")]
+    if curving:
+        from .curving_evaluation import format_table
+
+        notes += ["", "Curving on the shipped routes at their line speeds (the part `curving`; excess: mean over seeds against passive):",
+                  "", format_table(curving)]  # fmt: skip
     return "\n".join(lines + notes) + "\n"
 
 
@@ -289,7 +295,7 @@ def v2_summary(result: dict) -> str:
 
 
 def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
-           parts: tuple[str, ...] = ("critical", "cost", "margins"), trusted: bool = False, backend: str = "local",
+           parts: tuple[str, ...] = ("critical", "cost", "margins", "curving"), trusted: bool = False, backend: str = "local",
            address: str | None = None, workers: int | None = None, settings=None) -> dict:  # fmt: skip
     """Protocol v2 for ``policies`` into ``out``: ``results.json`` (rewritten atomically after
     each controller; ``resume`` keeps those already in it) and ``table.md`` (:func:`v2_table`)."""
