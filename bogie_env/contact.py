@@ -21,10 +21,10 @@ from functools import lru_cache
 
 import numpy as np
 from numba import njit
-from scipy.optimize import brentq
 from scipy.special import ellipe, ellipk
 
 from .params import BogieParams
+from .rootfind import brentq  # scipy.optimize.brentq, bit for bit, without its 0.3-s import
 
 # ---------------------------------------------------------------------------------
 # Hertz
