@@ -4,7 +4,7 @@
 
 Each tree is a checkout with ``.shim/bogie_agents`` (docs/performance.md); the command runs with
 that tree on PYTHONPATH, once in each tree to warm its kernel cache, then RUNS times (default 8)
-alternating between the trees, so a busy host slows both alike. Prints the median and minimum
+alternating between the trees (and which goes first), so a busy host slows both alike. Prints the median and minimum
 wall time and the child's user and system CPU (``getrusage``).
 """
 
@@ -37,8 +37,8 @@ def main(argv: list[str]) -> None:
     for tree in trees:
         run(tree)
     times: dict[str, list[tuple[float, float, float]]] = {tree: [] for tree in trees}
-    for _ in range(runs):
-        for tree in trees:
+    for round_ in range(runs):
+        for tree in trees if round_ % 2 == 0 else trees[::-1]:  # alternate which tree goes first
             times[tree].append(run(tree))
     for tree in trees:
         wall, user, system = zip(*times[tree])
