@@ -131,12 +131,17 @@ def verify_manifest(folder: str | Path) -> list[str]:
 
 def save_normalisation(vec_normalize, path: str | Path) -> None:
     """Write a VecNormalize's observation statistics as plain JSON (exact float64 round trip)."""
-    rms = vec_normalize.obs_rms
+    if vec_normalize.norm_obs:
+        rms = vec_normalize.obs_rms
+        mean, var, count = np.asarray(rms.mean, dtype=float), np.asarray(rms.var, dtype=float), float(rms.count)
+    else:  # no observation statistics (norm_obs false): the identity, recorded as such
+        size = int(np.prod(vec_normalize.observation_space.shape))
+        mean, var, count = np.zeros(size), np.ones(size), 0.0
     payload = {
         "format": NORMALISATION_FORMAT,
-        "obs_mean": [float(v) for v in np.asarray(rms.mean, dtype=float).ravel()],
-        "obs_var": [float(v) for v in np.asarray(rms.var, dtype=float).ravel()],
-        "count": float(rms.count),
+        "obs_mean": [float(v) for v in mean.ravel()],
+        "obs_var": [float(v) for v in var.ravel()],
+        "count": count,
         "clip_obs": float(vec_normalize.clip_obs),
         "epsilon": float(vec_normalize.epsilon),
         "norm_obs": bool(vec_normalize.norm_obs),
@@ -275,11 +280,13 @@ def load_sb3_policy(path: str | Path, trusted: bool = False, env_config: dict | 
                         env_config=run_env)  # fmt: skip
     if run_config.get("residual") is None:
         return network
-    from .residual import ResidualPolicy, check_residual_config
+    from .residual import ResidualPolicy, WashedOutFeatures, check_residual_config
 
     residual = check_residual_config(run_config["residual"], where=f"{str(config_path)!r}: 'residual'")
-    baseline = CLASSICAL[residual["baseline"]](env_config if env_config is not None else run_env)
-    return ResidualPolicy(baseline, network, residual["scale"], name=str(path))
+    config = env_config if env_config is not None else run_env
+    features = WashedOutFeatures(config) if residual["features"] == "washed_out" else None
+    return ResidualPolicy(CLASSICAL[residual["baseline"]](config), network, residual["scale"], name=str(path),
+                          features=features)  # fmt: skip
 
 
 def check_shapes(policy, env_config: dict) -> None:
@@ -291,8 +298,13 @@ def check_shapes(policy, env_config: dict) -> None:
     from bogie_env.envs.task import HuntingTask
 
     task = HuntingTask(1, merge_config(env_config, {"observation": {"type": policy.observation_type}}))
-    for what, model_space, env_space in (("observation", model.observation_space, task.observation_space),
-                                         ("action", model.action_space, task.action_space)):  # fmt: skip
+    pairs = [("observation", model.observation_space, task.observation_space), ("action", model.action_space, task.action_space)]
+    if getattr(policy, "features", None) is not None:  # a residual on features: its filters take the env's observation
+        pairs = pairs[1:]
+        if getattr(getattr(policy.features, "filters", None), "n_obs", task.observation_space.shape[0]) != task.observation_space.shape[0]:
+            raise ConfigError(f"policy {policy.name!r}: its feature filters take {policy.features.filters.n_obs} "
+                              f"observations but the env config gives {task.observation_space.shape}")  # fmt: skip
+    for what, model_space, env_space in pairs:
         if model_space.shape != env_space.shape:
             raise ConfigError(
                 f"policy {policy.name!r} expects {what}s of shape {model_space.shape} but the env config gives "

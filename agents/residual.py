@@ -33,11 +33,24 @@ from bogie_env.params import ConfigError
 MAX_SCALE = 1.0
 
 
+#: What the network sees (``residual.features``): ``observation``, the env's observation (through
+#: VecNormalize); ``washed_out``, the robust baseline's zero-DC design signals (washed-out gyro and
+#: accelerometer, difference quotients of the relative displacements; :func:`bogie_agents.robust.filter_bank`),
+#: scaled by :data:`FEATURE_SCALES`, and the same signals times the measured speed / 600 km/h.
+FEATURES = ("observation", "washed_out")
+#: Typical hunting amplitudes of the design signals (1 mm, 1 mrad at 3 Hz): wheelset and frame yaw
+#: rates (rad/s), frame lateral velocity (m/s), wheelset lateral rates (clearance units per s).
+FEATURE_SCALES = np.array([0.02, 0.02, 0.02, 0.02, 3.0, 3.0])
+FEATURE_SPEED_KMH = 600.0
+FEATURE_CLIP = 10.0
+
+
 def check_residual_config(residual: Any, where: str = "residual") -> dict:
-    """``{"baseline": NAME, "scale": s}``: a classical controller name and 0 < s <= 1."""
+    """``{"baseline": NAME, "scale": s, "features": F}``: a classical controller name, 0 < s <= 1
+    and one of :data:`FEATURES` (default ``observation``)."""
     from .policies import CLASSICAL
 
-    if not isinstance(residual, dict) or set(residual) - {"baseline", "scale"} or "baseline" not in residual:
+    if not isinstance(residual, dict) or set(residual) - {"baseline", "scale", "features"} or "baseline" not in residual:
         raise ConfigError(f"{where} = {residual!r} is not allowed; allowed: a mapping with 'baseline' (one of "
                           f"{', '.join(CLASSICAL)}) and 'scale' (a number in (0, {MAX_SCALE:g}])")  # fmt: skip
     if residual["baseline"] not in CLASSICAL:
@@ -45,7 +58,65 @@ def check_residual_config(residual: Any, where: str = "residual") -> dict:
     scale = residual.get("scale", 0.2)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < float(scale) <= MAX_SCALE:
         raise ConfigError(f"{where}.scale = {scale!r} is not allowed; allowed: a number in (0, {MAX_SCALE:g}]")
-    return {"baseline": residual["baseline"], "scale": float(scale)}
+    features = residual.get("features", "observation")
+    if features not in FEATURES:
+        raise ConfigError(f"{where}.features = {features!r} is not allowed; allowed: {', '.join(FEATURES)}")
+    return {"baseline": residual["baseline"], "scale": float(scale), "features": features}
+
+
+class WashedOutFeatures:
+    """The network's input for ``features: washed_out``: zero for any constant observation.
+
+    ``[s / FEATURE_SCALES, s / FEATURE_SCALES x speed / 600 km/h]``, clipped to +-10, with ``s``
+    the six design signals of the robust baseline's filter bank (its own filter states, reset per
+    row; a row's filters start settled on its first observation). With an actor that has no
+    biases and an odd activation (tanh), the residual is an odd function of these features:
+    zero at rest, zero in a steady curve, zero for a constant sensor bias."""
+
+    def __init__(self, env_config: dict) -> None:
+        from .robust import RobustDampingController
+
+        self.filters = RobustDampingController(env_config)
+        self.dim = 2 * len(FEATURE_SCALES)
+
+    def reset(self, n_envs: int, rows=None) -> None:
+        self.filters.reset(n_envs, rows)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """Advance each row's filters on its observation; the features (n, 12)."""
+        return self._features(self.filters.signals(obs), obs)
+
+    def peek(self, obs: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """The features the given rows would have for ``obs``, without advancing their filters."""
+        f, bank = self.filters, self.filters.bank
+        y = np.asarray(obs, dtype=float)
+        state = np.where(f.started[rows, None], f.state[rows], y @ f.settle.T)
+        return self._features(state @ bank.c.T + y @ bank.d.T, obs)
+
+    def _features(self, signals: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        signals = signals / FEATURE_SCALES
+        speed = self.filters.speed_kmh(np.asarray(obs))[:, None] / FEATURE_SPEED_KMH
+        return np.clip(np.concatenate([signals, signals * speed], axis=1), -FEATURE_CLIP, FEATURE_CLIP).astype(np.float32)
+
+    def linear_map(self, speed_kmh: float):
+        """(a, b, c, d) with ``f+ = a f + b y``, ``features = c f + d y`` at a fixed speed (no clip)."""
+        bank = self.filters.bank
+        gain = np.concatenate([np.eye(len(FEATURE_SCALES)), np.eye(len(FEATURE_SCALES)) * speed_kmh / FEATURE_SPEED_KMH])
+        gain = gain / np.tile(FEATURE_SCALES, 2)[:, None]
+        return bank.a, bank.b, gain @ bank.c, gain @ bank.d
+
+
+def odd_actor(model) -> None:
+    """Zero and freeze the biases of an SB3 actor-critic's policy layers and action head, so that
+    with tanh the deterministic action is an odd function of the input (zero at zero)."""
+    import torch
+
+    layers = list(model.policy.mlp_extractor.policy_net.modules()) + [model.policy.action_net]
+    with torch.no_grad():
+        for layer in layers:
+            if isinstance(layer, torch.nn.Linear) and layer.bias is not None:
+                layer.bias.zero_()
+                layer.bias.requires_grad_(False)
 
 
 def compose(base: np.ndarray, residual: np.ndarray, scale: float) -> np.ndarray:
@@ -61,17 +132,28 @@ class ResidualVecEnv(VecEnvWrapper):
     baseline sees raw observations. A finished episode's row of the baseline is reset after the
     step that ended it (its next observation is the new episode's first)."""
 
-    def __init__(self, venv, baseline, scale: float) -> None:
-        super().__init__(venv)
+    def __init__(self, venv, baseline, scale: float, features=None) -> None:
+        from gymnasium import spaces
+
+        space = None
+        if features is not None:
+            space = spaces.Box(-FEATURE_CLIP, FEATURE_CLIP, (features.dim,), np.float32)
+        super().__init__(venv, observation_space=space)
         self.baseline = baseline
         self.scale = float(scale)
+        self.features = features
         self._obs: np.ndarray | None = None
+
+    def _agent_obs(self, obs: np.ndarray) -> np.ndarray:
+        return obs if self.features is None else self.features(obs)
 
     def reset(self) -> np.ndarray:
         obs = self.venv.reset()
         self.baseline.reset(self.num_envs)
+        if self.features is not None:
+            self.features.reset(self.num_envs)
         self._obs = obs
-        return obs
+        return self._agent_obs(obs)
 
     def step_async(self, actions: np.ndarray) -> None:
         base = self.baseline.act(self._obs)
@@ -80,52 +162,68 @@ class ResidualVecEnv(VecEnvWrapper):
     def step_wait(self):
         obs, rewards, dones, infos = self.venv.step_wait()
         rows = np.nonzero(dones)[0]
+        if self.features is not None:
+            for i in rows:  # the last observation, in the agent's terms (for bootstrapping)
+                terminal = infos[i].get("terminal_observation")
+                if terminal is not None:
+                    infos[i]["terminal_observation"] = self.features.peek(terminal[None], np.array([i]))[0]
         if rows.size:
             self.baseline.reset(self.num_envs, rows)
+            if self.features is not None:
+                self.features.reset(self.num_envs, rows)
         self._obs = obs
-        return obs, rewards, dones, infos
+        return self._agent_obs(obs), rewards, dones, infos
 
 
 class ResidualPolicy:
-    """A trained residual: ``act(y) = clip(baseline.act(y) + scale * network.act(y), -1, 1)``.
+    """A trained residual: ``act(y) = clip(baseline.act(y) + scale * network.act(x), -1, 1)``, with
+    ``x`` the observation ``y`` or, for ``features: washed_out``, :class:`WashedOutFeatures` of it.
 
     ``network`` is an :class:`bogie_agents.policies.SB3Policy` (deterministic, on normalised
     observations); ``baseline`` a classical controller built for the same env config."""
 
-    def __init__(self, baseline, network, scale: float, name: str) -> None:
+    def __init__(self, baseline, network, scale: float, name: str, features=None) -> None:
         self.baseline = baseline
         self.network = network
-        self.model = network.model  # shape checks (policies.check_shapes)
+        self.model = network.model
         self.scale = float(scale)
         self.name = name
+        self.features = features
         self.env_config = network.env_config
         self.observation_type = getattr(baseline, "observation_type", "sensors")
 
     def reset(self, n_envs: int, rows=None) -> None:
         self.baseline.reset(n_envs, rows)
+        if self.features is not None:
+            self.features.reset(n_envs, rows)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        return compose(self.baseline.act(obs), self.network.act(obs), self.scale)
-
-    def residual_jacobian(self, y0: np.ndarray) -> np.ndarray:
-        """``scale x d pi / d y`` at ``y0`` by torch autograd, through the VecNormalize scaling
-        and clipping and the action-box clip (:func:`bogie_agents.margins.sb3_jacobian_autograd`)."""
-        from .margins import sb3_jacobian_autograd
-
-        return self.scale * sb3_jacobian_autograd(self.network, y0)
+        x = obs if self.features is None else self.features(obs)
+        return compose(self.baseline.act(obs), self.network.act(x), self.scale)
 
     def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray):
         """The composite's linear model at the operating observation ``y0``: the baseline's own
-        model (its states, if any, unchanged) with ``scale x J_pi`` added to its feedthrough;
-        a channel whose composite command is saturated at ``y0`` has zero small-signal gain."""
-        from .margins import ControllerModel, controller_model, sb3_action
+        model beside the feature filters (if any), with ``scale x J`` (``J`` the network's Jacobian
+        by torch autograd, through its input normalisation) on the features' output; a channel
+        whose composite command is clipped at ``y0`` has zero small-signal gain."""
+        from .margins import ControllerModel, controller_model, sb3_action, sb3_jacobian_autograd
 
+        y0 = np.asarray(y0, dtype=np.float64)
         base = controller_model(self.baseline, n_obs, speed_kmh, y0)
-        residual = self.residual_jacobian(y0)
-        self.baseline.reset(1)
-        for _ in range(3):  # a stateful baseline settles at the operating point
-            u_base = np.asarray(self.baseline.act(np.asarray(y0, dtype=np.float32)[None]), dtype=np.float64)[0]
-        u = u_base + self.scale * sb3_action(self.network, y0)
-        live = (np.abs(u) < 1.0).astype(np.float64)[:, None]
-        return ControllerModel(base.a, base.b, live * base.c, live * (base.d + residual),
-                               f"residual: {base.method} + {self.scale:g} x SB3 Jacobian (torch autograd)")  # fmt: skip
+        self.reset(1)
+        for _ in range(3):  # stateful parts settle at the operating point
+            u_base = np.asarray(self.baseline.act(y0.astype(np.float32)[None]), dtype=np.float64)[0]
+            x0 = y0 if self.features is None else self.features(y0.astype(np.float32)[None])[0].astype(np.float64)
+        jac = self.scale * sb3_jacobian_autograd(self.network, x0)
+        live = (np.abs(u_base + self.scale * sb3_action(self.network, x0)) < 1.0).astype(np.float64)[:, None]
+        if self.features is None:
+            a, b, c, d = base.a, base.b, base.c, base.d + jac
+        else:
+            fa, fb, fc, fd = self.features.linear_map(speed_kmh)
+            nb, nf = base.n_states, fa.shape[0]
+            a = np.block([[base.a, np.zeros((nb, nf))], [np.zeros((nf, nb)), fa]])
+            b = np.vstack([base.b, fb])
+            c = np.hstack([base.c, jac @ fc])
+            d = base.d + jac @ fd
+        return ControllerModel(a, b, live * c, live * d, f"residual: {base.method} + {self.scale:g} x NN Jacobian "
+                               f"(torch autograd; network input: {'observation' if self.features is None else 'washed-out features'})")  # fmt: skip

@@ -163,7 +163,13 @@ def validate_run_config(config: dict, where: str = "") -> None:
     if config.get("residual") is not None:
         from .residual import check_residual_config
 
-        check_residual_config(config["residual"], where=f"agent config {where}: 'residual'")
+        residual = check_residual_config(config["residual"], where=f"agent config {where}: 'residual'")
+        if residual["features"] == "washed_out" and (config.get("vecnormalize") or {}).get("norm_obs", True):
+            raise _bad(where, "vecnormalize.norm_obs", (config.get("vecnormalize") or {}).get("norm_obs", True),
+                       "false with residual.features 'washed_out' (its features are scaled already, and a "
+                       "mean subtracted from them would make the residual nonzero at rest)")  # fmt: skip
+        if residual["features"] == "washed_out" and algo != "ppo":
+            raise _bad(where, "algo", algo, "ppo with residual.features 'washed_out' (its odd actor)")
     if config.get("policy", "MlpPolicy") != "MlpPolicy":
         raise _bad(where, "policy", config.get("policy"), "MlpPolicy (the observations are flat vectors)")
     pk = _mapping(where, "policy_kwargs", config.get("policy_kwargs"), POLICY_KWARGS)
@@ -236,10 +242,11 @@ def _residual(venv, config: dict, env_config: dict):
     if config.get("residual") is None:
         return venv
     from .policies import load_policy
-    from .residual import ResidualVecEnv, check_residual_config
+    from .residual import ResidualVecEnv, WashedOutFeatures, check_residual_config
 
     residual = check_residual_config(config["residual"])
-    return ResidualVecEnv(venv, load_policy(residual["baseline"], env_config), residual["scale"])
+    features = WashedOutFeatures(env_config) if residual["features"] == "washed_out" else None
+    return ResidualVecEnv(venv, load_policy(residual["baseline"], env_config), residual["scale"], features)
 
 
 def _is_number(text: str) -> bool:
@@ -300,7 +307,7 @@ def make_vec_envs(config: dict, seed: int):
     eval_cfg = config.get("eval") or {}
     eval_env = VecMonitor(_residual(BogieHuntingSB3VecEnv(int(eval_cfg.get("n_envs", 4)), eval_config, seed=seed + 10_000),
                                     config, eval_config))  # fmt: skip
-    eval_env = VecNormalize(eval_env, training=False, norm_reward=False, clip_obs=vn["clip_obs"])
+    eval_env = VecNormalize(eval_env, training=False, norm_obs=vn["norm_obs"], norm_reward=False, clip_obs=vn["clip_obs"])
     return env, eval_env
 
 
@@ -449,6 +456,10 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
         model = cls(config.get("policy", "MlpPolicy"), env, seed=seed, verbose=verbose, device="cpu",
                     tensorboard_log=str(out / "tb"), policy_kwargs=_policy_kwargs(config), **hyper)  # fmt: skip
 
+    if (config.get("residual") or {}).get("features") == "washed_out":
+        from .residual import odd_actor
+
+        odd_actor(model)  # after a resume too: requires_grad is not saved
     started = time.time()
     done_before = int(model.num_timesteps)
     eval_cfg = config.get("eval") or {}
