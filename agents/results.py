@@ -147,12 +147,8 @@ def table(results: list[dict], passive_kmh: float | None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
-        settings: ProtocolSettings | None = None, parts: tuple[str, ...] = PARTS, trusted: bool = False,
-        backend: str = "local", address: str | None = None, workers: int | None = None) -> dict:  # fmt: skip
-    """Evaluate ``policies`` into ``out``; ``trusted`` allows policy paths (an SB3 model file is code).
-    ``backend="ray"`` evaluates every controller and part as Ray tasks first (finished tasks kept in
-    ``out/chunks``, so a rerun resumes); the figures and the table are made here as locally."""
+def _results_folder(out: Path, resume: bool) -> tuple[Path, dict[str, dict]]:
+    """``out/results.json`` and, with ``resume``, the controllers already in it (by policy spec)."""
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {str(out)!r} is an existing file; give a folder")
     out.mkdir(parents=True, exist_ok=True)
@@ -163,6 +159,16 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
             done = {r["policy"]: r for r in json.loads(json_path.read_text()).get("policies", [])}
         except (json.JSONDecodeError, AttributeError, KeyError, TypeError) as error:
             raise ConfigError(f"--resume: {str(json_path)!r} is not a results file ({error}); move it away") from None
+    return json_path, done
+
+
+def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
+        settings: ProtocolSettings | None = None, parts: tuple[str, ...] = PARTS, trusted: bool = False,
+        backend: str = "local", address: str | None = None, workers: int | None = None) -> dict:  # fmt: skip
+    """Evaluate ``policies`` into ``out``; ``trusted`` allows policy paths (an SB3 model file is code).
+    ``backend="ray"`` evaluates every controller and part as Ray tasks first (finished tasks kept in
+    ``out/chunks``, so a rerun resumes); the figures and the table are made here as locally."""
+    json_path, done = _results_folder(out, resume)
     settings = settings or ProtocolSettings(seed=seed)
     distributed: dict[str, dict] = {}
     if backend != "local":
@@ -301,16 +307,7 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
     each controller; ``resume`` keeps those already in it) and ``table.md`` (:func:`v2_table`)."""
     from .stability_protocol import Settings, evaluate_policy_v2
 
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out {str(out)!r} is an existing file; give a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    json_path = out / "results.json"
-    done: dict[str, dict] = {}
-    if resume and json_path.is_file():
-        try:
-            done = {r["policy"]: r for r in json.loads(json_path.read_text()).get("policies", [])}
-        except (json.JSONDecodeError, AttributeError, KeyError, TypeError) as error:
-            raise ConfigError(f"--resume: {str(json_path)!r} is not a results file ({error}); move it away") from None
+    json_path, done = _results_folder(out, resume)
     settings = settings or Settings(seed=seed)
     todo = [spec for spec in dict.fromkeys(policies) if spec not in done]
     distributed: dict[str, dict] = {}
