@@ -101,7 +101,8 @@ def _env_variant(env_id: str) -> str | None:
 @json_option
 @argument("--out", default=None, help="write the JSON result here as well (atomically)")
 @argument("--parts", default=None,
-          help="which parts of the protocol to run. Protocol v2 (-v1 ids): critical, cost (default: both), margins, "
+          help="which parts of the protocol to run. Protocol v2 (-v1 ids): critical, cost, margins (default: these three; "
+               "margins needs the [margins] extra), curving, "
                "ramp and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
@@ -143,12 +144,23 @@ def _requested_parts(args: argparse.Namespace, allowed: set[str], default: str) 
     return requested
 
 
+def _default_v2_parts() -> str:
+    """critical, cost and margins; margins only where python-control (the [margins] extra) is installed."""
+    import importlib.util
+
+    if importlib.util.find_spec("control") is None:
+        print("bogie evaluate: python-control is not installed, so the margins part is skipped "
+              "(pip install 'bogie-env[margins]')", file=sys.stderr)  # fmt: skip
+        return "critical,cost"
+    return "critical,cost,margins"
+
+
 def _evaluate_v2(args: argparse.Namespace, env_config: dict) -> list[dict]:
     """Protocol v2 (agents/stability_protocol.py) for every --policy."""
     from .policies import load_policy
     from .stability_protocol import Settings, available_parts, evaluate_policy_v2
 
-    parts = _requested_parts(args, set(available_parts()), "critical,cost")
+    parts = _requested_parts(args, set(available_parts()), _default_v2_parts())
     for spec in args.policy:
         load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any run
     settings = Settings(seed=args.seed, progress=True)

@@ -260,3 +260,15 @@ def test_results_v2_writes_json_and_table_and_resumes(tmp_path, monkeypatch):
     monkeypatch.setattr(sp, "evaluate_policy_v2", lambda *a, **k: pytest.fail("re-evaluated a finished controller"))
     again = results.run_v2(["passive"], make_config(variant="v1"), tmp_path, resume=True, settings=settings, parts=("critical",))
     assert again == json.loads(json.dumps(payload))
+
+
+def test_default_parts_give_margins_where_python_control_is_installed(monkeypatch, capsys):
+    import importlib.util
+
+    from bogie_agents import cli
+
+    assert cli._default_v2_parts() == "critical,cost,margins"  # the dev install has the [margins] extra
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "control" else real(name, *a))
+    assert cli._default_v2_parts() == "critical,cost"
+    assert "python-control is not installed" in capsys.readouterr().err
