@@ -14,10 +14,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev,render,agents,margins]'
 	touch $(STAMP)
 
-## main job: the passive bogie's linear critical speed, then the shipped PPO controller against it
+## main job: the passive bogie's linear critical speed, then the shipped v1 controller against it (protocol v2)
 demo: $(STAMP)
 	$(BIN)/bogie critical-speed
-	$(BIN)/bogie evaluate --env Bogie/Hunting-v0 --policy passive --policy pretrained --parts critical
+	$(BIN)/bogie evaluate --policy passive --policy pretrained --parts critical
 
 ## quick test suite (slow tests skipped)
 test: $(STAMP)
