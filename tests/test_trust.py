@@ -488,7 +488,7 @@ def test_cli_version_and_help(capsys):
     with pytest.raises(SystemExit):
         cli_main(["evaluate", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert "Protocol v2 (-v1 ids): critical, cost (default: both)" in text and "robustness (default: all)" in text
+    assert "Protocol v2 (-v1 ids): critical, cost, margins (default: these three" in text and "robustness (default: all)" in text
 
 
 def test_figures_name_units_and_label_every_line(tmp_path):
