@@ -441,7 +441,9 @@ def _register_protocol_part() -> None:
         def progress(line: str) -> None:
             ctx.progress.report(line, 1.0, 0.0)
 
-        return {"curving": curving_columns(policy, ctx.env_config, settings=settings, progress=progress if ctx.settings.progress else False)}
+        columns = curving_columns(policy, ctx.env_config, settings=settings, progress=progress if ctx.settings.progress else False)
+        columns["policy"] = ctx.progress.label  # the controller's name in the protocol, not its object's path
+        return {"curving": columns}
 
 
 _register_protocol_part()

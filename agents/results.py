@@ -275,7 +275,7 @@ def v2_table(results: list[dict]) -> str:
     notes.append("† a seed also fails at a grid speed below this value (fails_below_kmh in results.json).")
     if dropped:
         notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
-    curving = [{"policy": r["policy"], **r["curving"]} for r in results if r.get("curving")]
+    curving = [{**r["curving"], "policy": r["policy"]} for r in results if r.get("curving")]
     if curving:
         from .curving_evaluation import format_table
 
