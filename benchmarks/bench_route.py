@@ -41,7 +41,7 @@ def steps_per_second(task: HuntingTask, seconds: float) -> float:
 CONSTANT = {"speed": {"start_kmh": 250.0, "end_kmh": 250.0, "accel": 0.0}}
 
 
-def make_task(variant: str, n: int, config: dict | None = None) -> HuntingTask:
+def make_task(variant: str | None, n: int, config: dict | None = None) -> HuntingTask:
     task = HuntingTask(n, make_config(config, variant=variant))
     rows = np.arange(n)
     task.seed_rows(rows, list(range(n)))

@@ -11,30 +11,14 @@ scenario's actuator health; the ratio is the cost of those.
 from __future__ import annotations
 
 import argparse
-import time
 
-import numpy as np
-
-from bogie_env.envs.config import make_config
-from bogie_env.envs.task import HuntingTask
+from bench_route import make_task, steps_per_second  # the same warm-up and stepping loop
 
 
-def steps_per_second(variant: str | None, n: int, seconds: float) -> tuple[float, int]:
-    task = HuntingTask(n, make_config(variant=variant))
-    rows = np.arange(n)
-    task.seed_rows(rows, list(range(n)))
-    task.reset_rows(rows)
-    actions = np.zeros((n, task.action_dim))
-    for _ in range(3):
-        task.step(actions)
-    steps, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds:
-        task.step(actions)
-        steps += 1
-        done = np.nonzero(task.done)[0]
-        if done.size:
-            task.reset_rows(done)
-    return steps * n / (time.perf_counter() - t0), task.n_sub
+def rate(variant: str | None, n: int, seconds: float) -> tuple[float, int]:
+    """Env steps per second of ``variant`` at ``n`` rows, and its substeps per env step."""
+    task = make_task(variant, n)
+    return steps_per_second(task, seconds), task.n_sub
 
 
 def main() -> None:
@@ -44,8 +28,8 @@ def main() -> None:
     args = parser.parse_args()
     print(f"{'N':>6} {'v0 steps/s':>12} {'v1 steps/s':>12} {'v0/v1':>6}  substeps v0, v1")
     for n in args.sizes:
-        v0, sub0 = steps_per_second(None, n, args.seconds)
-        v1, sub1 = steps_per_second("v1", n, args.seconds)
+        v0, sub0 = rate(None, n, args.seconds)
+        v1, sub1 = rate("v1", n, args.seconds)
         print(f"{n:>6} {v0:>12.0f} {v1:>12.0f} {v0 / v1:>6.2f}  {sub0}, {sub1}", flush=True)
 
 
