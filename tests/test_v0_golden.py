@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import bogie_env  # noqa: F401  (registers the ids)
+from tests.golden_runs import runs as golden_runs, vector_run
 
 GOLDEN = Path(__file__).parent / "data" / "v0_golden.npz"
 IDS = ("Bogie/Hunting-v0", "Bogie/HuntingPassive-v0", "Bogie/HuntingSemiActive-v0")
@@ -33,31 +34,14 @@ def single_run(env_id: str) -> dict[str, np.ndarray]:
     return {"obs": np.array(observations), "reward": np.array(rewards), "x": env.unwrapped.task.states.copy()}
 
 
-def vector_run(env_id: str) -> dict[str, np.ndarray]:
-    env = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point")
-    actions = np.random.default_rng(8).uniform(-1, 1, (N_STEPS, 3) + env.single_action_space.shape)
-    obs, _ = env.reset(seed=11)
-    observations, rewards = [obs], []
-    for a in actions:
-        obs, reward, *_ = env.step(a)
-        observations.append(obs)
-        rewards.append(reward)
-    return {"obs": np.array(observations), "reward": np.array(rewards), "x": env.unwrapped.task.states.copy()}
-
-
 def runs() -> dict[str, np.ndarray]:
-    out = {}
-    for env_id in IDS:
-        for kind, run in (("single", single_run), ("vector", vector_run)):
-            for key, value in run(env_id).items():
-                out[f"{env_id}|{kind}|{key}"] = value
-    return out
+    return golden_runs(IDS, single_run, N_STEPS)
 
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_v0_trajectories_are_bitwise_unchanged(env_id):
     golden = np.load(GOLDEN)
-    for kind, run in (("single", single_run), ("vector", vector_run)):
+    for kind, run in (("single", single_run), ("vector", lambda e: vector_run(e, N_STEPS))):
         for key, value in run(env_id).items():
             expected = golden[f"{env_id}|{kind}|{key}"]
             assert value.shape == expected.shape, (env_id, kind, key)
