@@ -40,6 +40,7 @@ from bogie_env.dynamics import LATERAL_STATES, BogieModel, state_index
 from bogie_env.envs import task as T
 from bogie_env.envs.config import bogie_params
 from bogie_env.envs.sensors import SENSOR_NAMES, filter_weight
+from bogie_env.envs.scenario import CONICITY_GRID
 from bogie_env.params import ConfigError
 from bogie_env.stability import KMH, linearize
 
@@ -53,7 +54,7 @@ SIGNALS = ("wheelset1_yaw_rate", "wheelset2_yaw_rate", "frame_yaw_rate", "frame_
 N_FILTER_STATES = 9
 N_SIG = len(SIGNALS)
 #: The conicity grid of the multi-model design and of the tests.
-DESIGN_CONICITIES = (0.025, 0.05, 0.1, 0.2, 0.3)
+DESIGN_CONICITIES = CONICITY_GRID
 
 
 # =============================================================================================

@@ -131,7 +131,7 @@ class Settings:
     window_step_m: float = 10.0
     band_half_width_hz: float = 2.0
     flange_time_limit: float = 0.01
-    conicities: tuple[float, ...] = (0.025, 0.05, 0.1, 0.2, 0.3)
+    conicities: tuple[float, ...] = scenarios.CONICITY_GRID
     degraded: dict[str, dict[str, float]] = field(default_factory=lambda: copy.deepcopy(DEGRADED))
     actuator_faults: bool = True
     delay_steps: int = 2

@@ -51,6 +51,9 @@ PROBABILITIES: dict[str, str] = {
     "actuator_failure_probability": "one active channel, drawn uniformly, gives zero force",
     "actuator_stuck_probability": "one active channel, drawn uniformly, holds a random command",
 }
+#: The equivalent conicities at which controllers are designed and judged: new wheels (0.025,
+#: the model's) to worn ones (EN 15302; the v1 range is 0.025-0.3).
+CONICITY_GRID: tuple[float, ...] = (0.025, 0.05, 0.1, 0.2, 0.3)
 FAULT_OPTIONS = ("failed_actuator", "stuck_actuator", "stuck_command")
 #: reset(options=...) keys this module reads (besides v0's start_kmh, end_kmh, accel, params).
 OPTION_NAMES: tuple[str, ...] = tuple(RANGES) + FAULT_OPTIONS
