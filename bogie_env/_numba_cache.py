@@ -5,7 +5,8 @@ and constants it compiles in: after an edit to ``dynamics.py``, a kernel of ``en
 would load stale machine code. So, when the package is imported, a hash of every module that
 uses numba, and of every package module those import, is compared with the hash stored beside
 the cache; when they differ, the package's cached kernels (``*.nbi``, ``*.nbc``) are deleted
-and numba compiles afresh. This uses no numba API and costs about a millisecond.
+and numba compiles afresh. This uses no numba API and costs a few milliseconds per import (it reads
+and hashes the sources; kept lean: it runs at every start, e.g. of ``bogie curving``).
 
 Cache folders are those numba writes to: ``__pycache__`` beside each source folder, or
 ``$NUMBA_CACHE_DIR/<folder>_<sha1 of its path>`` when that variable is set. (When the source
@@ -23,25 +24,28 @@ from pathlib import Path
 STAMP_NAME = "bogie-source.sha256"
 _USES_NUMBA = re.compile(rb"^(from numba\b|import numba\b)", re.MULTILINE)  # at module level
 _RELATIVE_IMPORT = re.compile(rb"^\s*from (\.+)([\w.]*) import \(?([\w\s,]+)\)?", re.MULTILINE)
+_WORD = re.compile(r"\w+")
 
 
-def _module_file(package_dir: Path, current: Path, dots: int, dotted: str) -> Path | None:
-    base = current.parent
+def _module_file(sources: dict[str, bytes], current: str, dots: int, dotted: str) -> str | None:
+    """The package file (a key of ``sources``) that ``from <dots><dotted> import ...`` in
+    ``current`` names, or None (a module outside the package, or not a source file)."""
+    base = os.path.dirname(current)
     for _ in range(dots - 1):
-        base = base.parent
-    target = base.joinpath(*dotted.split(".")) if dotted else base
-    for candidate in (target.with_suffix(".py"), target / "__init__.py"):
-        if candidate.is_file() and package_dir in candidate.parents:
+        base = os.path.dirname(base)
+    target = os.path.join(base, *dotted.split(".")) if dotted else base
+    for candidate in (target + ".py", os.path.join(target, "__init__.py")):
+        if candidate in sources:
             return candidate
     return None
 
 
 def tracked_sources(package_dir: Path) -> list[Path]:
     """The modules that import numba at module level and, transitively, the package modules
-    they import."""
-    sources = {path: path.read_bytes() for path in package_dir.rglob("*.py")}
-    todo = [path for path, text in sources.items() if _USES_NUMBA.search(text)]
-    tracked: set[Path] = set()
+    they import. (Plain strings, not Path objects, inside: this runs on every ``import bogie_env``.)"""
+    sources = {str(path): path.read_bytes() for path in Path(package_dir).rglob("*.py")}
+    todo = [path for path, text in sources.items() if b"numba" in text and _USES_NUMBA.search(text)]  # substring test first: faster
+    tracked: set[str] = set()
     while todo:
         path = todo.pop()
         if path in tracked:
@@ -49,11 +53,11 @@ def tracked_sources(package_dir: Path) -> list[Path]:
         tracked.add(path)
         for dots, dotted, names in _RELATIVE_IMPORT.findall(sources[path]):
             module = dotted.decode()
-            found = [_module_file(package_dir, path, len(dots), module)]
-            for name in re.findall(r"\w+", names.decode()):  # "from . import kernel" names modules
-                found.append(_module_file(package_dir, path, len(dots), f"{module}.{name}" if module else name))
-            todo += [f for f in found if f is not None and f in sources]
-    return sorted(tracked)
+            found = [_module_file(sources, path, len(dots), module)]
+            for name in _WORD.findall(names.decode()):  # "from . import kernel" names modules
+                found.append(_module_file(sources, path, len(dots), f"{module}.{name}" if module else name))
+            todo += [f for f in found if f is not None]
+    return sorted(Path(path) for path in tracked)
 
 
 def source_hash(package_dir: Path, tracked: list[Path]) -> str:

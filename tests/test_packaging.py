@@ -166,3 +166,29 @@ def test_the_readme_lists_every_command_with_exactly_its_options():
     for name, sub in commands.items():
         options = {s for action in sub._actions for s in action.option_strings if s.startswith("--") and s != "--help"}
         assert set(re.findall(r"`(--[a-z-]+)`", rows[name])) == options, name
+
+
+#: What the ``bogie curving`` steady state has no use for: the agents' stack, Gymnasium and the
+#: env, plotting, the margins' and the distributed extras, and the scipy modules it no longer
+#: imports (each costs a noticeable part of the command's start-up, docs/performance.md).
+NOT_FOR_CURVING = ("stable_baselines3", "torch", "gymnasium", "matplotlib", "control", "ray", "optuna", "pandas",
+                   "tensorboard", "tqdm", "rich", "scipy.optimize", "scipy.integrate", "bogie_env.envs.config",
+                   "bogie_env.envs.hunting_env", "bogie_env.envs.task")  # fmt: skip
+
+
+def test_the_bogie_curving_command_imports_nothing_it_does_not_use(tmp_path):
+    """The console script's steady-curving path (``bogie_agents.cli``, as ``bogie`` runs it)."""
+    script = (
+        "import contextlib, io, json, sys\n"
+        "from bogie_agents.cli import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+        "    code = main(['curving', '--radius', '7000', '--cant', '0.15', '--speed', '350', '--json'])\n"
+        "assert code == 0 and json.loads(out.getvalue())['stable']\n"
+        "print(json.dumps(sorted(sys.modules)))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    loaded = set(json.loads(done.stdout.strip().splitlines()[-1]))
+    unwanted = sorted(name for name in NOT_FOR_CURVING if name in loaded or any(m.startswith(name + ".") for m in loaded))
+    assert not unwanted, unwanted
+    assert "bogie_env.analysis.curving" in loaded  # the check ran the command, not an import error
