@@ -23,7 +23,9 @@ from pathlib import Path
 
 STAMP_NAME = "bogie-source.sha256"
 _USES_NUMBA = re.compile(rb"^(from numba\b|import numba\b)", re.MULTILINE)  # at module level
-_RELATIVE_IMPORT = re.compile(rb"^\s*from (\.+)([\w.]*) import \(?([\w\s,]+)\)?", re.MULTILINE)
+# "from .a import b, c" on one line, or "from .a import (b,\n c)" across lines: a one-line import must
+# not run into the next line, or the import on that line would be missed.
+_RELATIVE_IMPORT = re.compile(rb"^[ \t]*from (\.+)([\w.]*) import (?:\(([^)]*)\)|([\w \t,]+))", re.MULTILINE)
 _WORD = re.compile(r"\w+")
 
 
@@ -51,8 +53,9 @@ def tracked_sources(package_dir: Path) -> list[Path]:
         if path in tracked:
             continue
         tracked.add(path)
-        for dots, dotted, names in _RELATIVE_IMPORT.findall(sources[path]):
+        for dots, dotted, grouped, names in _RELATIVE_IMPORT.findall(sources[path]):
             module = dotted.decode()
+            names = grouped or names
             found = [_module_file(sources, path, len(dots), module)]
             for name in _WORD.findall(names.decode()):  # "from . import kernel" names modules
                 found.append(_module_file(sources, path, len(dots), f"{module}.{name}" if module else name))

@@ -80,3 +80,24 @@ def test_importing_bogie_env_drops_kernels_compiled_from_other_source(tmp_path):
         handle.write("\n# edited\n")
     run(code, tmp_path)
     assert all(p.exists() for p in files)
+
+
+def test_tracked_sources_follow_every_relative_import_form(tmp_path):
+    """One-line imports on consecutive lines, a parenthesised import across lines with a comment,
+    and ``from . import module``: each imported package module is tracked."""
+    package = tmp_path / "pkg"
+    (package / "sub").mkdir(parents=True)
+    (package / "kernel.py").write_text(
+        "from numba import njit\n"
+        "from .a import x\n"
+        "from .b import y\n"
+        "from .c import (\n    z,  # a comment\n    w,\n)\n"
+        "from . import d\n"
+        "from .sub import e\n"
+    )
+    for name in ("a", "b", "c", "d", "unused"):
+        (package / f"{name}.py").write_text("x = y = z = w = 1\n")
+    (package / "sub" / "__init__.py").write_text("")
+    (package / "sub" / "e.py").write_text("")
+    tracked = {p.relative_to(package).as_posix() for p in _numba_cache.tracked_sources(package)}
+    assert tracked == {"kernel.py", "a.py", "b.py", "c.py", "d.py", "sub/__init__.py", "sub/e.py"}
