@@ -51,7 +51,16 @@ N_LAT = len(LAT)
 #: The design signals, in order (SI units: rad/s, rad/s, rad/s, m/s).
 SIGNALS = ("wheelset1_yaw_rate", "wheelset2_yaw_rate", "frame_yaw_rate", "frame_lateral_velocity",
            "wheelset1_lateral_rate", "wheelset2_lateral_rate")
+#: States of the order-1 filter bank; order 2 adds the second washout stages and four washed-out
+#: displacements (:func:`filter_states`).
 N_FILTER_STATES = 9
+#: The allowed ``washout_order`` of a gain table (absent: 1, the shipped v1 table's bank).
+WASHOUT_ORDERS = (1, 2)
+
+
+def filter_states(washout_order: int = 1) -> int:
+    """The number of filter-bank states for ``washout_order``."""
+    return N_FILTER_STATES if washout_order == 1 else N_FILTER_STATES + 6
 N_SIG = len(SIGNALS)
 #: The conicity grid of the multi-model design and of the tests.
 DESIGN_CONICITIES = CONICITY_GRID
@@ -193,41 +202,75 @@ class FilterBank:
     d: np.ndarray
 
 
-def filter_bank(n_obs: int, dt: float, washout_hz: float, leak_hz: float) -> FilterBank:
+def filter_bank(n_obs: int, dt: float, washout_hz: float, leak_hz: float, washout_order: int = 1) -> FilterBank:
     """The washouts, difference quotients and the leaky integrator as one discrete state space.
 
-    States (SI units): previous gyro, washed-out gyro, previous relative yaw 1 and 2, previous
-    acceleration, washed-out acceleration, lateral velocity, previous wheelset lateral
-    displacement 1 and 2 (relative to the frame).
+    ``washout_order`` 1 (the shipped v1 table): first-order washouts of the gyro and of the
+    acceleration; the difference quotients as they are. States (SI units): previous gyro,
+    washed-out gyro, previous relative yaw 1 and 2, previous acceleration, washed-out
+    acceleration, lateral velocity, previous wheelset lateral displacement 1 and 2 (relative to
+    the frame).
+
+    ``washout_order`` 2: each washout is two cascaded first-order high-passes of corner
+    ``washout_hz`` (``(s / (s + a))^2``), and each difference quotient is followed by one
+    first-order high-pass of the same corner. Then every design signal has zero steady response
+    to a *ramp* of the observation, not only to a constant: in a clothoid transition the frame yaw
+    rate (V times the curvature), the unbalanced lateral acceleration and the wheelsets' relative
+    yaws and offsets ramp, and a first-order washout passes a ramp as a constant (slope x time
+    constant), so the damping would resist the whole transition. States: order 1's, then the
+    second gyro stage, the second acceleration stage and the four washed-out difference quotients.
     """
+    if washout_order not in WASHOUT_ORDERS:
+        raise ConfigError(f"washout_order = {washout_order!r} is not allowed; allowed: {', '.join(map(str, WASHOUT_ORDERS))}")
     alpha = math.exp(-2 * math.pi * washout_hz * dt)  # high-pass: h+ = alpha (h + x - x_prev)
     beta = math.exp(-2 * math.pi * leak_hz * dt)  # leaky integrator: v+ = beta v + dt h
     g, acc = T.SENSOR_FRAME_YAW_RATE, T.SENSOR_FRAME_LATERAL_ACCEL
     r1, r2 = T.SENSOR_WHEELSET1_YAW, T.SENSOR_WHEELSET2_YAW
     l1, l2 = T.SENSOR_WHEELSET1_LATERAL, T.SENSOR_WHEELSET2_LATERAL
+    n = filter_states(washout_order)
     PG, HG, PR1, PR2, PA, HA, V, PL1, PL2 = range(N_FILTER_STATES)
-    a = np.zeros((N_FILTER_STATES, N_FILTER_STATES))
-    b = np.zeros((N_FILTER_STATES, n_obs))
+    a = np.zeros((n, n))
+    b = np.zeros((n, n_obs))
     # gyro washout: hg_new = alpha hg - alpha pg + alpha gyro
     a[HG, HG], a[HG, PG], b[HG, g] = alpha, -alpha, alpha * T.YAW_RATE_SCALE
     b[PG, g] = T.YAW_RATE_SCALE
     b[PR1, r1] = b[PR2, r2] = T.REL_YAW_SCALE
     b[PA, acc] = T.ACCEL_SCALE
     a[HA, HA], a[HA, PA], b[HA, acc] = alpha, -alpha, alpha * T.ACCEL_SCALE
-    a[V, V] = beta  # v_new = beta v + dt ha_new
-    a[V] += dt * a[HA]
-    b[V] = dt * b[HA]
     b[PL1, l1] = b[PL2, l2] = 1.0  # times delta: set by the caller's scale (observation units here)
-    c = np.zeros((N_SIG, N_FILTER_STATES))
+    # difference quotients (new value as a row over [state, observation]): (x - x_prev) / dt
+    dq_c = np.zeros((4, n))
+    dq_d = np.zeros((4, n_obs))
+    for i, (prev, col, scale) in enumerate(((PR1, r1, T.REL_YAW_SCALE), (PR2, r2, T.REL_YAW_SCALE), (PL1, l1, 1.0), (PL2, l2, 1.0))):
+        dq_c[i, prev], dq_d[i, col] = -1.0 / dt, scale / dt
+    gyro_c, gyro_d, acc_c, acc_d = a[HG].copy(), b[HG].copy(), a[HA].copy(), b[HA].copy()
+    if washout_order == 2:
+        HG2, HA2 = N_FILTER_STATES, N_FILTER_STATES + 1
+        for stage, (first, row_a, row_b) in ((HG2, (HG, gyro_c, gyro_d)), (HA2, (HA, acc_c, acc_d))):
+            # second stage: h2_new = alpha (h2 + h1_new - h1), h1 = the first stage's state
+            a[stage] = alpha * row_a
+            a[stage, stage] += alpha
+            a[stage, first] -= alpha
+            b[stage] = alpha * row_b
+        gyro_c, gyro_d, acc_c, acc_d = a[HG2].copy(), b[HG2].copy(), a[HA2].copy(), b[HA2].copy()
+        for i, (prev, col, scale) in enumerate(((PR1, r1, T.REL_YAW_SCALE), (PR2, r2, T.REL_YAW_SCALE), (PL1, l1, 1.0), (PL2, l2, 1.0))):
+            # the quotient of the washed-out displacement (the two commute): h_new = alpha (h + x - x_prev),
+            # signal (h_new - h) / dt; state h
+            h = N_FILTER_STATES + 2 + i
+            a[h, h], a[h, prev], b[h, col] = alpha, -alpha, alpha * scale
+            dq_c[i] = (a[h] - np.eye(n)[h]) / dt
+            dq_d[i] = b[h] / dt
+    a[V, V] = beta  # v_new = beta v + dt ha_new
+    a[V] += dt * acc_c
+    b[V] = dt * acc_d
+    c = np.zeros((N_SIG, n))
     d = np.zeros((N_SIG, n_obs))
-    for i, (prev, col) in enumerate(((PR1, r1), (PR2, r2))):
-        c[i, prev], d[i, col] = -1.0 / dt, T.REL_YAW_SCALE / dt
-        c[i] += a[HG]
-        d[i] += b[HG]
-    c[2], d[2] = a[HG], b[HG]
+    for i in range(2):
+        c[i], d[i] = dq_c[i] + gyro_c, dq_d[i] + gyro_d
+    c[2], d[2] = gyro_c, gyro_d
     c[3], d[3] = a[V], b[V]
-    for i, (prev, col) in enumerate(((PL1, l1), (PL2, l2))):
-        c[4 + i, prev], d[4 + i, col] = -1.0 / dt, 1.0 / dt
+    for i in range(2):
+        c[4 + i], d[4 + i] = dq_c[2 + i], dq_d[2 + i]
     return FilterBank(a, b, c, d)
 
 
@@ -241,7 +284,8 @@ GAINS_FILE = Path(__file__).resolve().parent / "robust_gains.json"
 
 def load_gains(path: str | Path = GAINS_FILE) -> dict:
     """The gain table: design speeds (km/h), gains (n_speeds, 4 channels, N_SIG signals) in
-    normalised command per SI signal unit, the filter corners, and how it was made."""
+    normalised command per SI signal unit, the filter corners, the washout order (``washout_order``,
+    1 when absent: :func:`filter_bank`), and how it was made."""
     data = json.loads(Path(path).read_text())
     if tuple(data.get("signals", ())) != SIGNALS or tuple(data.get("channels", ())) != tuple(CHANNEL_NAMES):
         raise ConfigError(f"{str(path)!r}: the gain table's signals/channels are not {SIGNALS} / {tuple(CHANNEL_NAMES)}")
@@ -251,6 +295,9 @@ def load_gains(path: str | Path = GAINS_FILE) -> dict:
         raise ConfigError(f"{str(path)!r}: gains must be (n_speeds, {len(CHANNEL_NAMES)}, {N_SIG}) over increasing speeds")
     if not (np.all(np.isfinite(gains)) and np.all(np.isfinite(speeds))):
         raise ConfigError(f"{str(path)!r}: gains and speeds must be finite")
+    order = data.get("washout_order", 1)
+    if isinstance(order, bool) or order not in WASHOUT_ORDERS:
+        raise ConfigError(f"{str(path)!r}: washout_order = {order!r} is not allowed; allowed: {', '.join(map(str, WASHOUT_ORDERS))}")
     return {**data, "speeds_kmh": speeds, "gains": gains}
 
 
@@ -276,11 +323,13 @@ class RobustDampingController(Controller):
         self.speeds_kmh = np.asarray(table["speeds_kmh"], dtype=float)
         self.gains = np.asarray(table["gains"], dtype=float)[:, self.active, :]  # active channels only
         self.washout_hz, self.leak_hz = float(table["washout_hz"]), float(table["leak_hz"])
+        self.washout_order = int(table.get("washout_order", 1))
         self.n_obs = len(T.SENSORS) + 1 + (len(self.active) if env_config["observation"]["include_actuators"] else 0)
-        self.bank = filter_bank(self.n_obs, self.dt, self.washout_hz, self.leak_hz)
+        self.bank = filter_bank(self.n_obs, self.dt, self.washout_hz, self.leak_hz, self.washout_order)
+        self.n_filter_states = self.bank.a.shape[0]
         # steady filter state for a constant observation: (I - A)^-1 B
-        self.settle = np.linalg.solve(np.eye(N_FILTER_STATES) - self.bank.a, self.bank.b)
-        self.state = np.zeros((0, N_FILTER_STATES))
+        self.settle = np.linalg.solve(np.eye(self.n_filter_states) - self.bank.a, self.bank.b)
+        self.state = np.zeros((0, self.n_filter_states))
         self.started = np.zeros(0, dtype=bool)
 
     def gain_at(self, speed_kmh: np.ndarray) -> np.ndarray:
@@ -293,7 +342,7 @@ class RobustDampingController(Controller):
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         if rows is None or self.state.shape[0] != n_envs:
-            self.state = np.zeros((n_envs, N_FILTER_STATES))
+            self.state = np.zeros((n_envs, self.n_filter_states))
             self.started = np.zeros(n_envs, dtype=bool)
         else:
             self.state[rows] = 0.0
@@ -362,6 +411,7 @@ class DesignSettings:
     max_radius: float = 0.998
     washout_hz: float = 0.5
     leak_hz: float = 0.3
+    washout_order: int = 1
     max_evaluations: int = 2500
     smoothness: float = 1e-4  # weight of |x - x_previous speed|^2 (scaled gains)
     shrinkage: float = 1e-5  # weight of |x|^2
@@ -407,7 +457,7 @@ def tune(env_config: dict, settings: DesignSettings | None = None, progress=None
     nominal = {c: DesignModel(env_config, c) for c in settings.conicities}
     late = {c: DesignModel(delayed, c) for c in settings.conicities}
     n_obs = next(iter(nominal.values())).n_obs
-    bank = filter_bank(n_obs, env_config["dt"], settings.washout_hz, settings.leak_hz)
+    bank = filter_bank(n_obs, env_config["dt"], settings.washout_hz, settings.leak_hz, settings.washout_order)
     x = np.zeros((len(CHANNEL_NAMES), N_SIG))
     for ch, sig in (("frame_lateral", 3), ("frame_yaw", 2), ("wheelset1_yaw", 0), ("wheelset2_yaw", 1)):
         x[CHANNEL_NAMES.index(ch), sig] = 1.0
@@ -439,6 +489,7 @@ def tune(env_config: dict, settings: DesignSettings | None = None, progress=None
             progress(f"{v:g} km/h: conicities {cs}, worst damping ratio {-result.fun:.4f}")
     return {"signals": list(SIGNALS), "channels": list(CHANNEL_NAMES), "speeds_kmh": np.array(settings.speeds_kmh),
             "gains": np.stack(table), "washout_hz": settings.washout_hz, "leak_hz": settings.leak_hz,
+            "washout_order": settings.washout_order,
             "design": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()}}  # fmt: skip
 
 
@@ -610,6 +661,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, default=10, help="ramp, route: seeds 0..N-1")
     parser.add_argument("--out", default=str(GAINS_FILE))
     parser.add_argument("--variant", default="v1")
+    parser.add_argument("--washout-order", type=int, default=1, choices=WASHOUT_ORDERS,
+                        help="design: the filter bank's washout order (filter_bank; the shipped table: 1)")
     args = parser.parse_args(argv)
     config = make_config({"randomize": {}}, variant=args.variant)
     if args.what == "report":
@@ -631,7 +684,7 @@ def main(argv: list[str] | None = None) -> None:
                       f"onsets {r['onset_kmh']}; peak forces {r['peak_force']}", flush=True)  # fmt: skip
         return
     start = time.time()
-    settings = DesignSettings()
+    settings = DesignSettings(washout_order=args.washout_order)
     n = len(settings.speeds_kmh)
     done = [0]
 
@@ -642,7 +695,8 @@ def main(argv: list[str] | None = None) -> None:
               file=sys.stderr, flush=True)  # fmt: skip
 
     table = tune(config, settings, progress)
-    table["command"] = f"python -m bogie_agents.robust design --variant {args.variant}"
+    table["command"] = f"python -m bogie_agents.robust design --variant {args.variant}" + (
+        f" --washout-order {args.washout_order}" if args.washout_order != 1 else "")
     save_gains(table, args.out)
     print(f"wrote {args.out}")
 

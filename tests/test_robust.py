@@ -8,7 +8,7 @@
   with one more step of loop delay;
 - the linear controller model against ``act`` on a random observation sequence;
 - washout: a constant observation (a steady curve, a sensor bias) gives zero steady command,
-  in ``act`` and as the model's exact DC gain;
+  in ``act`` and as the model's exact DC gain; the second-order washout against its transfer functions and a ramp;
 - per-row state: ``reset(rows)`` restarts only those rows; a batch row equals a lone run.
 """
 
@@ -132,6 +132,56 @@ def test_constant_observation_gives_zero_steady_command(config, controller):
     model = controller.controller_model(controller.n_obs, 300.0, None)
     dc = model.c @ np.linalg.solve(np.eye(model.n_states) - model.a, model.b) + model.d
     assert np.max(np.abs(dc)) < 1e-9
+
+
+def test_second_order_washout_against_the_first_order_high_pass(config):
+    """``washout_order`` 2 against its transfer functions (H1(z) = alpha (z - 1) / (z - alpha), the
+    first-order discrete high-pass): gyro path H1^2, wheelset yaw rates H1 x the difference
+    quotient of the relative yaw plus the gyro path, lateral rates H1 x the quotient; order 1 is
+    H1 and the plain quotient. Then a ramp in any observation gives zero steady signals with order
+    2 (a clothoid transition), not with order 1."""
+    dt, n_obs = config["dt"], RobustDampingController(config).n_obs
+    alpha = np.exp(-2 * np.pi * 0.5 * dt)
+    for order in (1, 2):
+        bank = filter_bank(n_obs, dt, 0.5, 0.3, order)
+        for hz in (0.2, 1.0, 3.0, 12.0):
+            z = np.exp(2j * np.pi * hz * dt)
+            h1 = alpha * (z - 1) / (z - alpha)
+            quotient = (z - 1) / (dt * z) * (h1 if order == 2 else 1.0)
+            gyro = T.YAW_RATE_SCALE * h1**order
+            got = _response(bank.a, bank.b, bank.c, z) + bank.d
+            assert np.isclose(got[2, T.SENSOR_FRAME_YAW_RATE], gyro, rtol=1e-9)
+            assert np.isclose(got[0, T.SENSOR_FRAME_YAW_RATE], gyro, rtol=1e-9)
+            assert np.isclose(got[0, T.SENSOR_WHEELSET1_YAW], T.REL_YAW_SCALE * quotient, rtol=1e-9)
+            assert np.isclose(got[5, T.SENSOR_WHEELSET2_LATERAL], quotient, rtol=1e-9)
+        ramp = np.arange(4000)[:, None] * 1e-3 * np.ones(n_obs)
+        f = np.zeros(bank.a.shape[0])
+        for y in ramp:
+            s = bank.c @ f + bank.d @ y
+            f = bank.a @ f + bank.b @ y
+        if order == 2:
+            assert np.max(np.abs(s)) < 1e-9
+        else:
+            assert np.min(np.abs(s)) > 1e-3  # every signal passes a ramp as a constant
+    with pytest.raises(ConfigError, match="washout_order"):
+        filter_bank(n_obs, dt, 0.5, 0.3, 3)
+
+
+def test_gain_table_washout_order(tmp_path, config, controller):
+    """Absent: order 1 (the shipped table); 2: the controller runs the order-2 bank with zero
+    steady command; anything else is a named error."""
+    table = load_gains()
+    assert "washout_order" not in table and controller.washout_order == 1 and controller.bank.a.shape == (9, 9)
+    table["washout_order"] = 2
+    second = RobustDampingController(config, table)
+    assert second.bank.a.shape == (15, 15)
+    model = second.controller_model(second.n_obs, 300.0, None)
+    assert np.max(np.abs(model.c @ np.linalg.solve(np.eye(model.n_states) - model.a, model.b) + model.d)) < 1e-9
+    table["washout_order"] = 3
+    path = tmp_path / "gains.json"
+    save_gains(table, path)
+    with pytest.raises(ConfigError, match="washout_order = 3"):
+        load_gains(path)
 
 
 def test_rows_keep_their_own_state(config):
