@@ -69,7 +69,8 @@ class WashedOutFeatures:
 
     ``[s / FEATURE_SCALES, s / FEATURE_SCALES x speed / 600 km/h]``, clipped to +-10, with ``s``
     the six design signals of the robust baseline's filter bank (its own filter states, reset per
-    row; a row's filters start settled on its first observation). With an actor that has no
+    row; a row's filters start from its first observation as the baseline's do:
+    :func:`bogie_agents.robust.start_state`). With an actor that has no
     biases and an odd activation (tanh), the residual is an odd function of these features:
     zero at rest, zero in a steady curve, zero for a constant sensor bias."""
 

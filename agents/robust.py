@@ -12,11 +12,13 @@ Structure (every signal in SI units before the gains; ``dt`` = the env step):
 - ``v_b``, the frame's lateral velocity: the leaky integral of the washed-out lateral
   acceleration.
 
-Each washout is a first-order discrete high-pass of corner ``washout_hz``; the difference
+Each washout is a first-order discrete high-pass of corner ``washout_hz`` (or, with the gain
+table's ``washout_order`` 2, a second-order one: :func:`filter_bank`); the difference
 quotients are zero at DC by construction. So a constant observation (a steady curve: constant
 wheelset offsets, relative yaws, frame yaw rate ``V/R`` and unbalanced lateral acceleration;
 or a sensor bias) gives zero steady command: the controller damps hunting and leaves curving
-to the passive suspension.
+to the passive suspension. After ``reset`` the filters start settled on the first observation,
+except the accelerometer chain, which starts at rest (:func:`start_state`).
 
 Commands (normalised, ``u = torque / max_force``): ``u = -G(V) s`` with ``s = [r_1, r_2, r_b,
 v_b]`` and G a gain matrix per design speed, interpolated linearly in the measured speed.
@@ -274,6 +276,24 @@ def filter_bank(n_obs: int, dt: float, washout_hz: float, leak_hz: float, washou
     return FilterBank(a, b, c, d)
 
 
+def start_state(bank: FilterBank) -> np.ndarray:
+    """(n_states, n_obs): a row's filter state from its first observation after reset.
+
+    The steady state of a constant observation, ``(I - A)^-1 B`` (so the gyro's and the
+    displacement transducers' biases, and a start inside a curve, give no start transient),
+    except that the accelerometer chain starts from zero acceleration. At reset the bogie is at
+    rest but displaced (the initial perturbation), so the first acceleration sample is the
+    suspension's real pull, up to tens of m/s², not a bias: settled on it, the washed-out
+    acceleration would see the bogie's return as a step and its leaky integral would report a
+    lateral velocity of about that acceleration times the washout's time constant, saturating
+    every actuator for 2-3 s. Started at rest, the velocity estimate integrates the real
+    acceleration; the accelerometer's bias then gives a small transient (bias x time constant).
+    """
+    settle = np.linalg.solve(np.eye(bank.a.shape[0]) - bank.a, bank.b)
+    settle[:, T.SENSOR_FRAME_LATERAL_ACCEL] = 0.0
+    return settle
+
+
 # =============================================================================================
 # The gain table and the controller
 # =============================================================================================
@@ -308,7 +328,8 @@ class RobustDampingController(Controller):
     API (the residual-policy helper's base): ``RobustDampingController(env_config)``,
     ``reset(n_envs, rows=None)``, ``act(obs) -> (n, n_active) float32 in [-1, 1]`` on batches
     of v1 observations (each row keeps its own filter state; a row's first observation after
-    ``reset`` initialises its filters at rest, so sensor biases give no start transient),
+    ``reset`` initialises its filters (:func:`start_state`: settled on it, so the gyro's and the
+    displacement sensors' biases give no start transient; the accelerometer chain at rest),
     ``controller_model(n_obs, speed_kmh, y0)`` for ``bogie margins``.
     """
 
@@ -327,8 +348,7 @@ class RobustDampingController(Controller):
         self.n_obs = len(T.SENSORS) + 1 + (len(self.active) if env_config["observation"]["include_actuators"] else 0)
         self.bank = filter_bank(self.n_obs, self.dt, self.washout_hz, self.leak_hz, self.washout_order)
         self.n_filter_states = self.bank.a.shape[0]
-        # steady filter state for a constant observation: (I - A)^-1 B
-        self.settle = np.linalg.solve(np.eye(self.n_filter_states) - self.bank.a, self.bank.b)
+        self.settle = start_state(self.bank)
         self.state = np.zeros((0, self.n_filter_states))
         self.started = np.zeros(0, dtype=bool)
 

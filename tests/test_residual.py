@@ -112,10 +112,17 @@ def test_washed_out_residual_is_zero_at_rest_and_for_constant_observations(v1_co
     n_obs = net.model.observation_space.shape[0]
     y = rng.uniform(-0.5, 0.5, (3, 11)).astype(np.float32)
     y[:, 6] = 0.6  # speed
+    biased = y.copy()
+    y[:, T.SENSOR_FRAME_LATERAL_ACCEL] = 0.0  # the accelerometer chain starts at rest (robust.start_state)
     residual.reset(3)
     baseline.reset(3)
     for _ in range(5):
         assert np.allclose(residual.act(y), baseline.act(y), rtol=0, atol=1e-9)  # rounding of the filters
+    residual.reset(3)
+    baseline.reset(3)
+    for _ in range(1500):  # a constant acceleration: zero once its start has washed out (15 s)
+        u_residual, u_baseline = residual.act(biased), baseline.act(biased)
+    assert np.allclose(u_residual, u_baseline, rtol=0, atol=1e-7)
     assert np.allclose(net.act(np.zeros((1, n_obs), np.float32)), 0.0)
     moved = y + rng.uniform(-0.05, 0.05, y.shape).astype(np.float32)
     assert not np.allclose(residual.act(moved), baseline.act(moved))

@@ -8,7 +8,8 @@
   with one more step of loop delay;
 - the linear controller model against ``act`` on a random observation sequence;
 - washout: a constant observation (a steady curve, a sensor bias) gives zero steady command,
-  in ``act`` and as the model's exact DC gain; the second-order washout against its transfer functions and a ramp;
+  in ``act`` and as the model's exact DC gain; a reset transient of the accelerometer gives no
+  fake velocity; the second-order washout against its transfer functions and a ramp;
 - per-row state: ``reset(rows)`` restarts only those rows; a batch row equals a lone run.
 """
 
@@ -101,7 +102,8 @@ def test_linear_model_matches_act(config, controller):
     dy = 0.003 * rng.standard_normal((30, controller.n_obs))
     dy[:, speed] = 0.0
     controller.reset(1)
-    controller.act(y0[None].astype(np.float32))  # settles the filters at y0
+    for _ in range(1500):  # settles the filters at y0 (the accelerometer chain starts at rest: 15 s)
+        controller.act(y0[None].astype(np.float32))
     c = np.zeros(model.n_states)
     worst = scale = 0.0
     for step in range(30):
@@ -123,6 +125,7 @@ def test_constant_observation_gives_zero_steady_command(config, controller):
     y_curve = np.clip(0.5 * rng.standard_normal((n, controller.n_obs)), -3, 3)
     for y in (y_start, y_curve):
         y[:, len(T.SENSORS)] = (300.0 - T.SPEED_CENTRE_KMH) / T.SPEED_SCALE_KMH
+    y_start[:, T.SENSOR_FRAME_LATERAL_ACCEL] = 0.0  # the accelerometer chain starts at rest (next test)
     controller.reset(n)
     first = controller.act(y_start.astype(np.float32))
     assert np.max(np.abs(first)) < 1e-6  # the filters start settled: no transient from a bias
@@ -132,6 +135,22 @@ def test_constant_observation_gives_zero_steady_command(config, controller):
     model = controller.controller_model(controller.n_obs, 300.0, None)
     dc = model.c @ np.linalg.solve(np.eye(model.n_states) - model.a, model.b) + model.d
     assert np.max(np.abs(dc)) < 1e-9
+
+
+def test_a_reset_transient_of_the_accelerometer_is_not_taken_for_a_bias(config, controller):
+    """At reset the bogie is at rest but displaced: the first acceleration sample is the
+    suspension's pull, gone a step later. The lateral-velocity signal must stay at the velocity
+    that pulse gives (|a0| dt), not report |a0| x the washout's time constant (the filters settled
+    on the pulse: a fake velocity that saturated every actuator for 2-3 s on the routes)."""
+    a0 = -25.0  # m/s^2, the size of a large initial perturbation's pull
+    y = np.zeros((1, controller.n_obs))
+    y[0, len(T.SENSORS)] = (250.0 - T.SPEED_CENTRE_KMH) / T.SPEED_SCALE_KMH
+    first = y.copy()
+    first[0, T.SENSOR_FRAME_LATERAL_ACCEL] = a0 / T.ACCEL_SCALE
+    controller.reset(1)
+    velocity = [controller.signals(first)[0, 3]] + [controller.signals(y)[0, 3] for _ in range(300)]
+    assert np.max(np.abs(velocity)) <= 1.01 * abs(a0) * config["dt"]
+    assert abs(velocity[0]) > 0.5 * abs(a0) * config["dt"]  # the pulse itself is seen
 
 
 def test_second_order_washout_against_the_first_order_high_pass(config):
