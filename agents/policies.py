@@ -5,6 +5,7 @@
 
 - ``passive``, ``skyhook``, ``lqr``, ``lqg``: :mod:`bogie_agents.controllers`;
 - ``robust_damping``: :mod:`bogie_agents.robust` (the robust classical baseline for v1, docs/controllers.md);
+- ``robust_steering``: ``robust_damping`` plus the curving assist of :mod:`bogie_agents.curving_assist`;
 - ``pretrained``: the policy shipped for the env's version, ``agents/pretrained/v0/`` or
   ``agents/pretrained/v1/`` (see docs/results.md), checked against the SHA-256 sums in that
   folder's ``SHA256SUMS`` before anything in it is loaded. The version is the env id's
@@ -35,10 +36,11 @@ from bogie_env.fileio import write_text_atomic
 from bogie_env.params import ConfigError
 
 from .controllers import LQGController, LQRController, PassiveController, SkyhookController
+from .curving_assist import SteeringController
 from .robust import RobustDampingController
 
 CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": LQRController, "lqg": LQGController,
-             "robust_damping": RobustDampingController}
+             "robust_damping": RobustDampingController, "robust_steering": SteeringController}
 #: The shipped policies, one folder per env version (``v0``, ``v1``).
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 ALGORITHMS = ("ppo", "sac", "td3")
