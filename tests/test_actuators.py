@@ -103,11 +103,10 @@ def test_channel_table_modes_and_action_columns():
 @njit
 def _command_and_delay(table, actions, commands_out, targets_out):
     delay = np.zeros((A.DELAY_SLOTS, 2, A.N_CHANNELS))
-    command = np.empty((2, A.N_CHANNELS))
     for step in range(actions.shape[0]):
+        command = commands_out[step]  # a view: no array-slice assignment, whose compilation alone takes ~5 s
         for k in range(A.N_CHANNELS):
             A.command_from_action(table, k, actions[step], command)
-        commands_out[step] = command
         A.delayed_targets(delay, step, command, table, targets_out[step])
 
 
