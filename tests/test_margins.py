@@ -46,6 +46,19 @@ def lqr(env_config):
 
 
 @pytest.fixture(scope="module")
+def pretrained_v0():
+    """The shipped v0 PPO (v1 keeps v0's spaces), loaded once for the module."""
+    from bogie_agents.policies import load_policy
+
+    return load_policy("pretrained", make_config())
+
+
+@pytest.fixture(scope="module")
+def lqg(env_config):
+    return LQGController(env_config, v_range_kmh=(400.0, 500.0))
+
+
+@pytest.fixture(scope="module")
 def lqr_loop(lqr, env_config, model):
     return M.linear_loop(lqr, env_config, SPEED_KMH, model=model)
 
@@ -94,13 +107,8 @@ def test_plant_model_predicts_the_nonlinear_interval(env_config, model, delay_st
     assert np.max(np.abs(y_linear)) > 0.0
 
 
-def _controllers(env_config):
-    return [SkyhookController(env_config), LQRController(env_config, v_range_kmh=(400.0, 500.0)),
-            LQGController(env_config, v_range_kmh=(400.0, 500.0))]  # fmt: skip
-
-
-def test_controller_models_match_act(env_config, model):
-    for policy in _controllers(env_config):
+def test_controller_models_match_act(env_config, model, lqr, lqg):
+    for policy in (SkyhookController(env_config), lqr, lqg):
         loop = M.linear_loop(policy, env_config, SPEED_KMH, model=model)
         config = M.policy_config(env_config, policy)
         y0 = M.observe(loop.plant.x_eq, loop.plant.force_eq, SPEED_KMH / 3.6, config, model)[0]
@@ -108,9 +116,9 @@ def test_controller_models_match_act(env_config, model):
         assert error < 1e-3, (policy.name, error)  # float32 rounding of act()
 
 
-def test_controller_model_check_can_fail(env_config, model):
+def test_controller_model_check_can_fail(env_config, model, lqg):
     """Not vacuous: a controller model with a wrong gain is caught."""
-    policy = LQGController(env_config, v_range_kmh=(400.0, 500.0))
+    policy = lqg
     loop = M.linear_loop(policy, env_config, SPEED_KMH, model=model)
     config = M.policy_config(env_config, policy)
     y0 = M.observe(loop.plant.x_eq, loop.plant.force_eq, SPEED_KMH / 3.6, config, model)[0]
@@ -197,10 +205,8 @@ def test_pretrained_margins_hold_in_nonlinear_simulation(env_config, model):
     _assert_verdicts(_verdicts(policy, env_config, model, loop, margins, duration_s=6.0))
 
 
-def test_policy_jacobian_autograd_matches_finite_differences(env_config, model):
-    from bogie_agents.policies import load_policy
-
-    policy = load_policy("pretrained", env_config)
+def test_policy_jacobian_autograd_matches_finite_differences(env_config, model, pretrained_v0):
+    policy = pretrained_v0
     config = M.policy_config(env_config, policy)
     x, force, u = M.operating_point(policy, config, SPEED_KMH, model)
     assert np.max(np.abs(force)) > 0  # the learned policy commands a bias at rest
@@ -451,14 +457,13 @@ def test_controller_model_hook_is_used(v1_config, v1_lqg_loop):
     np.testing.assert_allclose(ours, scaled, atol=1e-9)
 
 
-def test_residual_policy_model(v1_config, v1_lqg):
+def test_residual_policy_model(v1_config, v1_lqg, pretrained_v0):
     """A residual policy clip(LQG + scale * PPO): the baseline's model plus scale x the PPO's
     autograd Jacobian (linear_models.residual_controller_model), against its act, at its own
     closed-loop equilibrium (the PPO part commands a bias)."""
     from bogie_agents.linear_models import residual_controller_model, sb3_jacobian_autograd
-    from bogie_agents.policies import load_policy
 
-    ppo = load_policy("pretrained", make_config())  # the shipped v0 PPO: v1 keeps v0's spaces
+    ppo = pretrained_v0  # the shipped v0 PPO: v1 keeps v0's spaces
 
     class Residual(LQGController):
         scale = 0.2
