@@ -41,3 +41,34 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "ray_cluster" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _each_track_profile_built_once():
+    """Every HuntingTask builds its 262 km alignment profile (an FFT of 2^20 points, ~60 ms of
+    CPU); the suite builds a few hundred tasks on a few tracks (v0's default, v1's "alert"
+    level). Within the session each distinct profile is built once by the library function and
+    every task gets its own copy of the values. Only the env's and the ramp analysis' references
+    are wrapped: tests of bogie_env.track call its functions themselves."""
+    from bogie_env.analysis import ramp
+    from bogie_env.envs import task
+    from bogie_env.track import TrackProfile
+
+    built: dict = {}
+
+    def once(function):
+        def wrapper(*args, **kwargs):
+            key = (function.__name__, args, tuple(sorted(kwargs.items())))
+            if key not in built:
+                built[key] = function(*args, **kwargs)
+            profile = built[key]
+            return TrackProfile(profile.values.copy(), profile.dx)
+
+        return wrapper
+
+    patch = pytest.MonkeyPatch()
+    patch.setattr(task, "alignment_profile", once(task.alignment_profile))
+    patch.setattr(task, "alignment_profile_at_level", once(task.alignment_profile_at_level))
+    patch.setattr(ramp, "alignment_profile", once(ramp.alignment_profile))
+    yield
+    patch.undo()
