@@ -1,18 +1,13 @@
 """Shared fixtures: the paper's bogie, built once per test session."""
 
-import os
+import numpy as np
+import pytest
 
-# Before numba or torch loads OpenMP: its worker threads sleep between parallel regions instead
-# of spinning. The suite calls parallel kernels (model.rhs) thousands of times on one or a few
-# rows; on a busy 2-core host spinning threads made each call cost ~8 ms of CPU instead of ~0.03.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
+# importing bogie_env sets OMP_WAIT_POLICY=PASSIVE unless set, before numba's OpenMP starts: the
+# suite calls parallel kernels (model.rhs) thousands of times on one or a few rows
 from bogie_env.dynamics import BogieModel
-from bogie_env.params import BogieParams  # noqa: E402
-from bogie_env.stability import linearize  # noqa: E402
+from bogie_env.params import BogieParams
+from bogie_env.stability import linearize
 
 
 @pytest.fixture(scope="session")
