@@ -10,6 +10,7 @@ import yaml
 
 import bogie_agents.policies as policies
 from bogie_agents.controllers import PassiveController, SkyhookController
+from bogie_agents.curving_assist import SteeringController
 from bogie_agents.margins import check_controller_model, finite_difference_jacobian
 from bogie_agents.policies import PRETRAINED_DIR, SB3Policy, env_version, load_policy, pretrained_dir
 from bogie_agents.residual import (ResidualPolicy, ResidualVecEnv, WashedOutFeatures, check_residual_config, compose,
@@ -192,7 +193,8 @@ def test_pretrained_v0_still_loads_for_v0_and_a_missing_version_is_named(tmp_pat
 
 def test_pretrained_v1_is_the_washed_out_residual_and_is_verified_before_loading(tmp_path, monkeypatch):
     v1 = load_policy("pretrained", make_config(variant="v1"))
-    assert isinstance(v1, ResidualPolicy) and isinstance(v1.baseline, RobustDampingController)
+    assert isinstance(v1, ResidualPolicy) and isinstance(v1.baseline, SteeringController)
+    assert isinstance(v1.baseline.base, RobustDampingController)
     assert v1.features is not None and v1.scale == 0.3
     assert load_policy("pretrained", make_config(variant="v1_route")).features is not None  # routes: v1 too
     folder = tmp_path / "pretrained"
