@@ -334,7 +334,7 @@ def pretrained_dir(env_config: dict | None = None, env_id: str | None = None) ->
 
 
 def load_policy(spec: str, env_config: dict, trusted: bool = False, env_id: str | None = None):
-    """A policy by name (passive, skyhook, lqr, lqg, pretrained) or path.
+    """A policy by name (a classical controller of :data:`CLASSICAL`, or pretrained) or path.
 
     ``pretrained`` is the policy shipped for the env's version (``env_id``, or the config's:
     :func:`env_version`), verified against its SHA-256 manifest; a path is loaded only when

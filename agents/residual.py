@@ -2,8 +2,8 @@
 
 The command is ``u = clip(baseline(y) + scale * pi(y), -1, 1)`` (Silver et al. 2018, "Residual
 Policy Learning"; Johannink et al. 2019, "Residual Reinforcement Learning for Robot Control"):
-``baseline`` is a controller of :mod:`bogie_agents.controllers` (any object with ``reset``
-and ``act``), ``pi`` the network's deterministic action in [-1, 1] and ``scale`` the
+``baseline`` is a classical controller (a name of :data:`bogie_agents.policies.CLASSICAL`, e.g.
+``robust_steering`` for the shipped v1 policy; any object with ``reset`` and ``act``), ``pi`` the network's deterministic action in [-1, 1] and ``scale`` the
 network's authority, a fraction of each channel's command range.
 
 Why: a network trained with noise and delay alone has small stability margins (v0's PPO: gain
@@ -28,8 +28,7 @@ from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from bogie_env.params import ConfigError
 
-#: The classical controllers a residual may sit on (names for ``load_policy``); ``robust`` once
-#: the robust baseline exists in :mod:`bogie_agents.controllers`.
+#: The largest residual authority ``scale``: a fraction of each channel's command range.
 MAX_SCALE = 1.0
 
 
@@ -69,8 +68,8 @@ class WashedOutFeatures:
 
     ``[s / FEATURE_SCALES, s / FEATURE_SCALES x speed / 600 km/h]``, clipped to +-10, with ``s``
     the six design signals of the robust baseline's filter bank (its own filter states, reset per
-    row; a row's filters start from its first observation as the baseline's do:
-    :func:`bogie_agents.robust.start_state`). With an actor that has no
+    row; a row's filters start as ``robust_damping``'s do, settled on the first observation with
+    the accelerometer chain at rest: :func:`bogie_agents.robust.start_state`). With an actor that has no
     biases and an odd activation (tanh), the residual is an odd function of these features:
     zero at rest, zero in a steady curve, zero for a constant sensor bias."""
 
