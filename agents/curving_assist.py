@@ -19,7 +19,9 @@ torques' share, so it does not fall as the assist steers the wheelsets:
 
 with LP a cascade of ``lowpass_order`` first-order low-passes at ``lowpass_hz`` and
 ``T_1 - T_2`` the wheelset torques as observed (the v1 observation's actuator forces, the
-damping's included), or the assist's own previous torques when the forces are not observed.
+damping's included), or the assist's own previous torques when the forces are not observed
+(then the damping's torques and a failed or stuck wheelset actuator are not seen: the estimate
+is off by their share).
 NB: a real displacement transducer measures ``d_i``,
 which does not carry kappa; on a real vehicle the estimate would be the absolute yaw rate over
 the speed (a gyro). The v1 gyro measures the frame's yaw rate in track axes (zero in a steady
@@ -35,7 +37,9 @@ Commands (torques, N m, + for a curve to the left):
 - frame yaw (optional, ``frame_gain``): ``frame_gain k_psi L1 kappa_eff``;
 
 each limited to ``fraction`` of the channel's force limit, so the damping controller keeps
-the rest. ``kappa_eff = sign(kappa_hat) max(|kappa_hat| - deadband, 0)``.
+the rest. Only channels in ``force`` mode are commanded: a ``semi_active`` channel's action sets
+a damper's coefficient, not a torque, so the assist leaves it at zero.
+``kappa_eff = sign(kappa_hat) max(|kappa_hat| - deadband, 0)``.
 """
 
 from __future__ import annotations
@@ -79,11 +83,16 @@ class CurvingAssist(Controller):
         self.deadband = float(deadband_1pm)
         self.fraction = float(fraction)
         gain_by_channel = {"wheelset1_yaw": wheelset_gain, "wheelset2_yaw": -wheelset_gain, "frame_yaw": frame_gain}
-        #: normalised command per 1/m of effective curvature, per active channel
-        self.gain = np.array([gain_by_channel.get(CHANNEL_NAMES[k], 0.0) * self.yaw_stiffness * self.semi_wheelbase
-                              for k in self.active]) / self.max_force  # fmt: skip
-        ws1 = [j for j, k in enumerate(self.active) if CHANNEL_NAMES[k] == "wheelset1_yaw"]
-        self.torque_column = ws1[0] if ws1 else None
+        # only force channels take a torque command: a semi-active channel's action sets a damper's
+        # coefficient (docs/environment.md), which a steady steering offset would only unbalance
+        force_mode = [env_config["actuators"][CHANNEL_NAMES[k]]["mode"] == "force" for k in self.active]
+        #: normalised command per 1/m of effective curvature, per active channel (0: not commanded)
+        self.gain = np.array([gain_by_channel.get(CHANNEL_NAMES[k], 0.0) * self.yaw_stiffness * self.semi_wheelbase * force
+                              for k, force in zip(self.active, force_mode)]) / self.max_force  # fmt: skip
+        # the commanded torque columns of the two wheelsets (None: not commanded, no torque), for
+        # the estimate when the forces are not observed
+        self.command_columns = tuple(next((j for j, k in enumerate(self.active) if CHANNEL_NAMES[k] == name and self.gain[j] != 0.0), None)
+                                     for name in ("wheelset1_yaw", "wheelset2_yaw"))  # fmt: skip
         # the observed actuator forces (normalised by each active channel's limit), when observed
         first = len(T.SENSORS) + 1
         columns = {CHANNEL_NAMES[k]: (first + j, self.max_force[j]) for j, k in enumerate(self.active)}
@@ -94,7 +103,7 @@ class CurvingAssist(Controller):
                 raise ConfigError(f"curving_assist: the wheelset yaw channels' max_force differ ({s1} vs {s2} N m)")
             self.force_columns, self.force_scale = (c1, c2), float(s1)
         self.lp = np.zeros((0, self.order))
-        self.torque = np.zeros(0)
+        self.torque = np.zeros(0)  # (n,) T_1 - T_2 commanded by the assist at the last step, N m
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         if rows is None or self.lp.shape[0] != n_envs:
@@ -110,8 +119,8 @@ class CurvingAssist(Controller):
         r = (obs[:, T.SENSOR_WHEELSET1_YAW] - obs[:, T.SENSOR_WHEELSET2_YAW]).astype(float) * T.REL_YAW_SCALE
         if self.force_columns is not None:  # the measured wheelset torques (the damping's too)
             difference = (obs[:, self.force_columns[0]] - obs[:, self.force_columns[1]]).astype(float) * self.force_scale
-        else:
-            difference = 2.0 * self.torque
+        else:  # the assist's own commanded torques (a channel off or not commanded adds none)
+            difference = self.torque
         return -(r - difference / self.yaw_stiffness) / (2.0 * self.semi_wheelbase)
 
     def curvature(self, obs: np.ndarray) -> np.ndarray:
@@ -138,7 +147,10 @@ class CurvingAssist(Controller):
         k = self.curvature(obs)
         k_eff = np.sign(k) * np.maximum(np.abs(k) - self.deadband, 0.0)
         u = np.clip(k_eff[:, None] * self.gain[None, :], -self.fraction, self.fraction)
-        self.torque = u[:, self.torque_column] * self.max_force[self.torque_column] if self.torque_column is not None else 0.0 * k
+        self.torque = np.zeros(k.shape)
+        for sign, j in zip((1.0, -1.0), self.command_columns):
+            if j is not None:
+                self.torque = self.torque + sign * u[:, j] * self.max_force[j]
         return u
 
     def act(self, obs: np.ndarray) -> np.ndarray:

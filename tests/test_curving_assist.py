@@ -10,6 +10,7 @@ wheelset torques with the wrong sign (AoA grows), the estimate without the assis
 deflection (half the torque: the wheelsets stop halfway), a wrong yaw stiffness (b2 for b1).
 """
 
+import copy
 import tempfile
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from bogie_agents.policies import load_policy
 from bogie_agents.robust import RobustDampingController
 from bogie_env.dynamics import state_index
 from bogie_env.envs.config import bogie_params, make_config
-from bogie_env.envs.task import HuntingTask
+from bogie_env.envs.task import SENSOR_WHEELSET1_YAW, SENSOR_WHEELSET2_YAW, SENSORS, HuntingTask
 from bogie_env.params import ConfigError
 from bogie_env.route import equilibrium_cant_m
 
@@ -31,12 +32,13 @@ NO_SENSOR_ERRORS = {name: {"noise_density": 0.0, "bias": 0.0} for name in (
     "wheelset2_yaw_rel", "speed")}  # fmt: skip
 
 
-def curve_run(policy_factory, radius_m: float, cant_m: float, speed_kmh: float, curve_m: float, sensors: dict | None = None):
-    """One row on a perfect track: 50 m tangent, 100 m transition, then ``curve_m`` of a left
-    curve; returns the task at the end of the curve and the policy."""
+def curve_run(policy_factory, radius_m: float, cant_m: float, speed_kmh: float, curve_m: float, sensors: dict | None = None,
+              direction: str = "left", extra: dict | None = None):  # fmt: skip
+    """One row on a perfect track: 50 m tangent, 100 m transition, then ``curve_m`` of a curve
+    (``direction``); ``extra``: more config; returns the task at the end of the curve and the policy."""
     route = {"name": "assist-check", "design_speed_kmh": speed_kmh, "segments": [
         {"type": "tangent", "length": 50}, {"type": "transition", "length": 100},
-        {"type": "curve", "length": curve_m, "radius": radius_m, "cant": cant_m, "direction": "left"}]}  # fmt: skip
+        {"type": "curve", "length": curve_m, "radius": radius_m, "cant": cant_m, "direction": direction}]}  # fmt: skip
     with tempfile.TemporaryDirectory() as folder:
         path = str(Path(folder) / "assist-check.yaml")
         Path(path).write_text(yaml.safe_dump(route))
@@ -44,6 +46,8 @@ def curve_run(policy_factory, radius_m: float, cant_m: float, speed_kmh: float, 
                   "initial_perturbation": 0.0, "randomize": {}}  # fmt: skip
         if sensors is not None:
             update["sensors"] = sensors
+        if extra is not None:
+            update.update(extra)
         config = make_config(update, variant="v1_route")
         task = HuntingTask(1, config)
         task.seed_rows(np.array([0]), [0])
@@ -132,3 +136,62 @@ def test_bad_settings_are_named():
         CurvingAssist(config, fraction=1.5)
     with pytest.raises(ConfigError, match="lowpass_hz"):
         CurvingAssist(config, lowpass_hz=0.0)
+
+
+def test_a_right_curve_gives_the_mirrored_command():
+    """Left/right symmetry: the S-curve's curve to the right, no sensor errors, gives the left
+    curve's assist command with the opposite sign, to rounding (a one-sided deadband fails it)."""
+    commands = {}
+    for direction in ("left", "right"):
+        task, assist = curve_run(lambda c: CurvingAssist(c), 3000.0, 0.16, 250.0, 300.0, NO_SENSOR_ERRORS, direction)
+        commands[direction] = assist.command(task.obs)[0]
+    assert np.max(np.abs(commands["left"])) > 0.5
+    np.testing.assert_allclose(commands["right"], -commands["left"], atol=1e-9)
+
+
+def test_reset_of_some_rows_clears_only_their_filters():
+    """Vector envs reset finished rows only: those rows' estimates restart from zero, the others
+    keep theirs (a reset that ignores ``rows`` fails it)."""
+    config = make_config({}, variant="v1")
+    assist = CurvingAssist(config)
+    assist.reset(3)
+    obs = np.zeros((3, len(SENSORS) + 1 + assist.max_force.size), dtype=np.float32)
+    obs[:, SENSOR_WHEELSET1_YAW], obs[:, SENSOR_WHEELSET2_YAW] = -0.1, 0.1  # r1 - r2 = -1 mrad: kappa 3.3e-4 1/m to the left
+    for _ in range(500):
+        assist.command(obs)
+    before = assist.curvature_estimate
+    assert before[0] == pytest.approx(1e-3 / (2 * bogie_params(config).L1), rel=0.05)
+    assist.reset(3, np.array([1]))
+    after = assist.curvature_estimate
+    assert after[1] == 0.0 and assist.torque[1] == 0.0
+    np.testing.assert_array_equal(after[[0, 2]], before[[0, 2]])
+
+
+@pytest.mark.parametrize("failed", [None, "wheelset2_yaw"])
+def test_estimate_without_observed_forces_uses_the_commanded_torques(failed):
+    """Forces not observed: the estimate removes the assist's own commanded torques, the wheelset
+    channels' difference. R 10 km (the torque within its limit), no sensor errors: the same steady
+    estimate as with the forces observed, 2 %; with ``wheelset2_yaw`` off only wheelset 1's torque
+    deflects the springs (2 x one channel's torque, or ignoring it, fails it)."""
+    actuators = copy.deepcopy(make_config({}, variant="v1")["actuators"])
+    if failed is not None:
+        actuators[failed]["mode"] = "off"
+    update = {"observation": {"type": "sensors", "noise": 0.0, "include_actuators": False}, "actuators": actuators}
+    task, assist = curve_run(lambda c: CurvingAssist(c), 10000.0, 0.0, 200.0, 500.0, {**NO_SENSOR_ERRORS}, extra=update)
+    torque = dict(zip(["frame_lateral", "frame_yaw", "wheelset1_yaw", "wheelset2_yaw"], task.actuator_force[0]))
+    assert torque["wheelset1_yaw"] > 1e3
+    assert assist.curvature_estimate[0] == pytest.approx(1e-4, rel=0.02)
+
+
+def test_semi_active_channels_are_not_commanded():
+    """A semi-active channel's action is a damper's coefficient, not a torque: the assist leaves
+    it at zero (a steady offset would unbalance the dampers in every curve)."""
+    config = make_config({}, variant="v1_semi_active")
+    assist = CurvingAssist(config)
+    assist.reset(1)
+    obs = np.zeros((1, len(SENSORS) + 1 + assist.max_force.size), dtype=np.float32)
+    obs[:, SENSOR_WHEELSET1_YAW], obs[:, SENSOR_WHEELSET2_YAW] = -0.2, 0.2
+    for _ in range(300):
+        u = assist.command(obs)
+    assert assist.curvature_estimate[0] > 1e-4
+    assert not np.any(u)
