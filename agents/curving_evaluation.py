@@ -325,31 +325,51 @@ def curving_columns(policy, env_config: Mapping[str, Any] | None = None, routes:
     }
 
 
+def constant_curve_run(radius_m: float, cant_m: float, speed_kmh: float, curve_m: float, direction: str = "left",
+                       transition_m: float = 150.0, variant: str = "v1_route", update: Mapping[str, Any] | None = None,
+                       policy_factory: Callable[[dict], Any] | None = None,
+                       on_step: Callable[[HuntingTask], None] | None = None) -> tuple[HuntingTask, Any, dict]:  # fmt: skip
+    """One row on a perfect track (no irregularity, no perturbation, no randomisation): 50 m of
+    tangent, a ``transition_m`` transition, then ``curve_m`` of a constant curve, run until the
+    frame is 5 m from the route's end (the front wheelset still in the curve).
+
+    ``update``: top-level config sections that replace the defaults (e.g. ``sensors``);
+    ``policy_factory(config)`` makes the controller (None: zero action); ``on_step(task)`` is
+    called after each step. Returns the task, the policy (or None) and the config."""
+    import yaml
+
+    route = {"name": "constant-curve", "design_speed_kmh": speed_kmh, "segments": [
+        {"type": "tangent", "length": 50}, {"type": "transition", "length": transition_m},
+        {"type": "curve", "length": curve_m, "radius": radius_m, "cant": cant_m, "direction": direction}]}  # fmt: skip
+    with tempfile.TemporaryDirectory() as folder:
+        path = str(Path(folder) / "constant-curve.yaml")
+        Path(path).write_text(yaml.safe_dump(route))
+        user = {"route": {"names": [path], "speed_kmh": {path: speed_kmh}, "copies": 1}, "track": {"rms": 0.0, "level": None},
+                "initial_perturbation": 0.0, "randomize": {}, **(update or {})}  # fmt: skip
+        config = make_config(user, variant=variant)
+        task = HuntingTask(1, config)
+        task.seed_rows(np.array([0]), [0])
+        task.reset_rows(np.array([0]))
+        policy = None if policy_factory is None else policy_factory(config)
+        if policy is not None:
+            policy.reset(1)
+        end = task.route_layout.slots[0].end_m - 5.0
+        while task.distance_m[0] < end:
+            task.step(np.zeros((1, task.action_dim)) if policy is None else policy.act(task.obs))
+            if on_step is not None:
+                on_step(task)
+    return task, policy, config
+
+
 def steady_state_check(radius_m: float = 1500.0, cant_m: float = 0.15, speed_kmh: float = 180.0, direction: str = "right",
                        curve_m: float = 1500.0) -> dict:  # fmt: skip
     """Independent check of the route runs: the passive bogie in the route env on a long constant
     curve (perfect track, no perturbation), at the end of the curve, against the steady-state
     solver (``bogie curving``, :func:`bogie_env.analysis.curving.steady_curving`). Returns both
     and the largest relative difference of each quantity."""
-    import yaml
-
     from bogie_env.analysis.curving import steady_curving
 
-    route = {"name": "steady-check", "design_speed_kmh": speed_kmh, "segments": [
-        {"type": "tangent", "length": 50}, {"type": "transition", "length": 150},
-        {"type": "curve", "length": curve_m, "radius": radius_m, "cant": cant_m, "direction": direction}]}  # fmt: skip
-    with tempfile.TemporaryDirectory() as folder:
-        path = str(Path(folder) / "steady-check.yaml")
-        Path(path).write_text(yaml.safe_dump(route))
-        config = make_config({"route": {"names": [path], "speed_kmh": {path: speed_kmh}, "copies": 1},
-                              "track": {"rms": 0.0, "level": None}, "initial_perturbation": 0.0, "randomize": {}},
-                             variant="v1_passive")  # fmt: skip
-        task = HuntingTask(1, config)
-        task.seed_rows(np.array([0]), [0])
-        task.reset_rows(np.array([0]))
-        end = task.route_layout.slots[0].end_m - 5.0  # the front wheelset still in the curve
-        while task.distance_m[0] < end:
-            task.step(np.zeros((1, task.action_dim)))
+    task, _, _ = constant_curve_run(radius_m, cant_m, speed_kmh, curve_m, direction, variant="v1_passive")
     steady = steady_curving(task.model, radius_m, cant_m, speed_kmh, direction)
     q = steady.quantities
     route_values = {

@@ -16,44 +16,29 @@ forces held constant, which the time simulation must reach. The default is the S
 from __future__ import annotations
 
 import argparse
-import tempfile
-from pathlib import Path
 
 import numpy as np
-import yaml
 
+from bogie_agents.curving_evaluation import constant_curve_run
 from bogie_agents.policies import load_policy
 from bogie_env.actuators import force_matrix
 from bogie_env.analysis.curving import ACCELERATIONS, POSITIONS, _newton, curve_samples, signed_curve
 from bogie_env.dynamics import N_STATES, jacobian_kernel, rhs_single_kernel, state_index
-from bogie_env.envs.config import make_config
 from bogie_env.envs.task import HuntingTask
 
 NAMES = ("y1", "y2", "psi1", "psi2")
 
 
 def time_simulation(spec: str, radius: float, cant: float, speed_kmh: float) -> tuple[dict, HuntingTask]:
-    route = {"name": "steady-assist", "design_speed_kmh": speed_kmh, "segments": [
-        {"type": "tangent", "length": 50}, {"type": "transition", "length": 250},
-        {"type": "curve", "length": 2000, "radius": radius, "cant": cant, "direction": "left"}]}  # fmt: skip
-    with tempfile.TemporaryDirectory() as folder:
-        path = str(Path(folder) / "steady-assist.yaml")
-        Path(path).write_text(yaml.safe_dump(route))
-        config = make_config({"route": {"names": [path], "speed_kmh": {path: speed_kmh}, "copies": 1},
-                              "track": {"rms": 0.0, "level": None}, "initial_perturbation": 0.0, "randomize": {}},
-                             variant="v1_route")  # fmt: skip
-        task = HuntingTask(1, config)
-        task.seed_rows(np.array([0]), [0])
-        task.reset_rows(np.array([0]))
-        policy = load_policy(spec, config)
-        policy.reset(1)
-        end = task.route_layout.slots[0].end_m - 5.0
-        rows = []
-        while task.distance_m[0] < end:
-            task.step(policy.act(task.obs))
-            x = task.states[0]
-            rows.append([x[state_index(n)] for n in NAMES] + list(task.actuator_force[0])
-                        + [float(task.flange_contact[0].any())] + list(task.wear_number_n[0]))  # fmt: skip
+    rows = []
+
+    def record(task: HuntingTask) -> None:
+        x = task.states[0]
+        rows.append([x[state_index(n)] for n in NAMES] + list(task.actuator_force[0])
+                    + [float(task.flange_contact[0].any())] + list(task.wear_number_n[0]))  # fmt: skip
+
+    task, _, config = constant_curve_run(radius, cant, speed_kmh, 2000.0, "left", transition_m=250.0,
+                                         policy_factory=lambda c: load_policy(spec, c), on_step=record)  # fmt: skip
     last = np.array(rows)[-int(round(5.0 / config["dt"])):].mean(axis=0)
     return {"state": dict(zip(NAMES, last[:4])), "forces": last[4:8], "flange": last[8], "wear": last[9:11]}, task
 

@@ -11,14 +11,12 @@ deflection (half the torque: the wheelsets stop halfway), a wrong yaw stiffness 
 """
 
 import copy
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from bogie_agents.curving_assist import CurvingAssist, SteeringController
+from bogie_agents.curving_evaluation import constant_curve_run
 from bogie_agents.policies import load_policy
 from bogie_agents.robust import RobustDampingController
 from bogie_env.dynamics import state_index
@@ -36,27 +34,10 @@ def curve_run(policy_factory, radius_m: float, cant_m: float, speed_kmh: float, 
               direction: str = "left", extra: dict | None = None):  # fmt: skip
     """One row on a perfect track: 50 m tangent, 100 m transition, then ``curve_m`` of a curve
     (``direction``); ``extra``: more config; returns the task at the end of the curve and the policy."""
-    route = {"name": "assist-check", "design_speed_kmh": speed_kmh, "segments": [
-        {"type": "tangent", "length": 50}, {"type": "transition", "length": 100},
-        {"type": "curve", "length": curve_m, "radius": radius_m, "cant": cant_m, "direction": direction}]}  # fmt: skip
-    with tempfile.TemporaryDirectory() as folder:
-        path = str(Path(folder) / "assist-check.yaml")
-        Path(path).write_text(yaml.safe_dump(route))
-        update = {"route": {"names": [path], "speed_kmh": {path: speed_kmh}, "copies": 1}, "track": {"rms": 0.0, "level": None},
-                  "initial_perturbation": 0.0, "randomize": {}}  # fmt: skip
-        if sensors is not None:
-            update["sensors"] = sensors
-        if extra is not None:
-            update.update(extra)
-        config = make_config(update, variant="v1_route")
-        task = HuntingTask(1, config)
-        task.seed_rows(np.array([0]), [0])
-        task.reset_rows(np.array([0]))
-        policy = policy_factory(config)
-        policy.reset(1)
-        end = task.route_layout.slots[0].end_m - 5.0
-        while task.distance_m[0] < end:
-            task.step(policy.act(task.obs))
+    update = {} if sensors is None else {"sensors": sensors}
+    update.update(extra or {})
+    task, policy, _ = constant_curve_run(radius_m, cant_m, speed_kmh, curve_m, direction, transition_m=100.0, update=update,
+                                         policy_factory=policy_factory)  # fmt: skip
     return task, policy
 
 
