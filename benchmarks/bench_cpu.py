@@ -24,16 +24,12 @@ from bogie_env.envs.vector import BogieHuntingVectorEnv
 from bogie_env.simulator import BatchSimulator
 from bogie_env.stability import critical_speed
 
+from bench_dynamics import best_time  # one timing loop; CPU time here
+
 
 def best(func, number: int, repeats: int = 5) -> float:
     """Best CPU seconds per call."""
-    result = float("inf")
-    for _ in range(repeats):
-        start = time.process_time()
-        for _ in range(number):
-            func()
-        result = min(result, (time.process_time() - start) / number)
-    return result
+    return best_time(func, number, repeats, clock=time.process_time)
 
 
 def main() -> None:
