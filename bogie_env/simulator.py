@@ -34,7 +34,7 @@ from numba import njit, prange
 from .actuators import CH_DECAY_RATE, DAMPING, DELAY_SLOTS, FORCE, N_CHANNELS, advance_lag, channel_table, delayed_targets, lag_weights
 from .dynamics import N_STATES, P_L1, BogieModel, check_speed
 from .integrate import FASTMATH, N_SCRATCH, STATUS_OK, _advance_row, stable_substep
-from .track import ALIGNMENT_SAMPLES, N_TRACK_SAMPLES, TrackInput, TrackProfile, sample_track
+from .track import ALIGNMENT_SAMPLES, N_TRACK_SAMPLES, TrackInput, TrackProfile, prefetch_track, sample_track
 
 # ---- columns of a row's motion -----------------------------------------------------------------
 MOTION_FIELDS = ("speed", "accel", "end_speed", "distance", "steps", "start_speed")
@@ -150,12 +150,26 @@ def interval_accel(motion, dt):
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def advance_rows(start, stop, rows, channels, track, dt, n_sub):
     """Advance rows [start, stop) by one interval dt (see the module docstring)."""
-    x, motion, coefficients, lag, delay, command, output, track_sample, status = rows
     scratch = np.empty((N_SCRATCH, N_STATES))
     target = np.empty((2, N_CHANNELS))
     weights = np.empty((3 * n_sub + 1, N_CHANNELS))
     lag_weights(channels, dt, n_sub, weights)
+    _advance_run(start, stop, rows, channels, track, dt, n_sub, scratch, target, weights)
+
+
+# numba's private option _nrt=False: the row loop is compiled without reference counting. numba
+# counts references to arrays atomically whenever a view or tuple of arrays is bound, also inside
+# inlined functions, and per RK4 stage those counts were about a sixth of the interval's time
+# (perf, docs/performance.md). The loop allocates nothing; advance_rows, which allocates its
+# scratch, holds the references. Arithmetic is untouched.
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
+def _advance_run(start, stop, rows, channels, track, dt, n_sub, scratch, target, weights):
+    """The rows' loop of :func:`advance_rows`, with its scratch arrays; while a row is advanced the
+    alignment under the next row is fetched into the cache."""
+    x, motion, coefficients, lag, delay, command, output, track_sample, status = rows
     for n in range(start, stop):
+        if n + 1 < stop:
+            prefetch_track(track, motion[n + 1, M_DISTANCE], coefficients[n + 1, P_L1])
         m = motion[n]
         steps = int(m[M_STEPS])
         delayed_targets(delay[n], steps, command[n], channels, target)

@@ -26,7 +26,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from llvmlite import ir as llvm_ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .route import CANT_BASE_M, Route
 
@@ -124,6 +127,15 @@ class TrackInput:
 
 
 @njit(cache=True, inline="always")
+def _wrap(i, m):
+    """``i % m`` for m > 0, with the integer division (tens of cycles) only where the index
+    leaves the profile: the same index."""
+    if i < 0 or i >= m:
+        return i % m
+    return i
+
+
+@njit(cache=True, inline="always")
 def _interpolate(profile, inv_dx, s):
     """Linear interpolation on a periodic profile sampled every 1/inv_dx metres (empty: 0)."""
     m = profile.shape[0]
@@ -132,11 +144,44 @@ def _interpolate(profile, inv_dx, s):
     u = s * inv_dx
     k = math.floor(u)
     w = u - k
-    i0 = int(k) % m
+    i0 = _wrap(int(k), m)
     i1 = i0 + 1  # (i0 + 1) % m without a second integer division
     if i1 == m:
         i1 = 0
     return (1.0 - w) * profile[i0] + w * profile[i1]
+
+
+@intrinsic
+def _prefetch(typingctx, array, index):
+    """A hint to the CPU to fetch ``array[index]`` into its cache (LLVM's prefetch: no load, no
+    fault, no effect on any value)."""
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [args[1]])
+        i32 = llvm_ir.IntType(32)
+        fnty = llvm_ir.FunctionType(llvm_ir.VoidType(), [ptr.type, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        builder.call(fn, [ptr, i32(0), i32(3), i32(1)])  # read, keep in all cache levels, data
+        return context.get_dummy_value()
+
+    return types.void(array, index), codegen
+
+
+@njit(cache=True, inline="always")
+def _prefetch_alignment(profile, inv_dx, s):
+    """Prefetch the alignment sample :func:`_interpolate` reads first at distance s."""
+    m = profile.shape[0]
+    if m > 0:
+        _prefetch(profile, _wrap(int(math.floor(s * inv_dx)), m))
+
+
+@njit(cache=True, inline="always")
+def prefetch_track(track, s, L1):
+    """Start fetching the alignment samples under the wheelsets of a bogie at distance s: the
+    profile is megabytes long and each bogie reads it somewhere else, so without this each row's
+    first samples wait for memory."""
+    _prefetch_alignment(track[TRACK_ALIGNMENT], track[TRACK_ALIGNMENT_INV_DX], s + L1)
+    _prefetch_alignment(track[TRACK_ALIGNMENT], track[TRACK_ALIGNMENT_INV_DX], s - L1)
 
 
 @njit(cache=True, inline="always")

@@ -332,14 +332,27 @@ def _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, 
 def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health):
     """One env step of rows [start, stop): actions -> commands (through each row's actuator
     health) -> the simulator's interval -> task."""
+    _commands(start, stop, sim_rows, channels, action, health)
+    advance_rows(start, stop, sim_rows, channels, track, dt, n_sub)
+    scratch = np.empty((2, N_STATES))
+    details = np.empty((2, len(DETAIL_NAMES)))
+    _task_run(start, stop, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, details)
+
+
+# The row loops without reference counting (numba's _nrt=False), as bogie_env.simulator._advance_run.
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
+def _commands(start, stop, sim_rows, channels, action, health):
+    """The channel commands of rows [start, stop) from their actions, through each row's health."""
     command = sim_rows[5]
     for n in range(start, stop):
         for k in range(N_CHANNELS):
             command_from_action(channels, k, action[n], command[n])
             healthy_command(health[n], k, command[n])
-    advance_rows(start, stop, sim_rows, channels, track, dt, n_sub)
-    scratch = np.empty((2, N_STATES))
-    details = np.empty((2, len(DETAIL_NAMES)))
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
+def _task_run(start, stop, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, details):
+    """:func:`_task_row` of rows [start, stop)."""
     for n in range(start, stop):
         _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, details)
 
