@@ -16,16 +16,25 @@ adds train, tune, evaluate, results and margins to the same parser. Training and
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import sys
 from pathlib import Path
 from typing import Sequence
 
-from bogie_env import cli as library_cli
-from bogie_env.fileio import write_text_atomic
+#: The young-generation threshold of Python's cyclic garbage collector in the ``bogie`` process
+#: (Python's default: 700), set before numpy, numba and the package load: their start-up creates
+#: a few hundred thousand objects, and at 700 the collector spent 0.15-0.2 s of the ~1-s
+#: ``bogie curving`` scanning them (docs/performance.md). Collection still runs, every 50,000
+#: net allocations; no result depends on it.
+GC_YOUNG_THRESHOLD = 50_000
+gc.set_threshold(GC_YOUNG_THRESHOLD, *gc.get_threshold()[1:])
+
+from bogie_env import cli as library_cli  # noqa: E402
+from bogie_env.fileio import write_text_atomic  # noqa: E402
 from bogie_env.cli import (SEED, argument, backend_options, bogie_options, check_backend_args, command, env_config_from_args,
-                           json_option, print_json)  # fmt: skip
-from bogie_env.params import ConfigError
+                           json_option, print_json)  # fmt: skip  # noqa: E402
+from bogie_env.params import ConfigError  # noqa: E402
 
 #: Modules of the ``[agents]`` extra: a missing one is reported with the install command.
 AGENTS_EXTRA = ("stable_baselines3", "torch", "tensorboard", "tqdm", "rich")

@@ -192,3 +192,25 @@ def test_the_bogie_curving_command_imports_nothing_it_does_not_use(tmp_path):
     unwanted = sorted(name for name in NOT_FOR_CURVING if name in loaded or any(m.startswith(name + ".") for m in loaded))
     assert not unwanted, unwanted
     assert "bogie_env.analysis.curving" in loaded  # the check ran the command, not an import error
+
+
+def test_the_bogie_script_raises_the_gc_threshold_before_numpy_loads():
+    """``bogie_agents.cli`` sets the young-generation GC threshold before numpy (and numba, and
+    the package) are imported: their start-up is where the default threshold cost 0.1-0.2 s
+    of ``bogie curving`` (docs/performance.md)."""
+    script = (
+        "import builtins, gc, sys\n"
+        "seen = {}\n"
+        "original = builtins.__import__\n"
+        "def spy(name, *args, **kwargs):\n"
+        "    if name.split('.')[0] == 'numpy' and 'numpy' not in sys.modules:\n"
+        "        seen.setdefault('numpy', gc.get_threshold()[0])\n"
+        "    return original(name, *args, **kwargs)\n"
+        "builtins.__import__ = spy\n"
+        "import bogie_agents.cli as cli\n"
+        "print(seen['numpy'], cli.GC_YOUNG_THRESHOLD, gc.get_threshold()[0])\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    at_numpy, constant, now = (int(v) for v in done.stdout.split())
+    assert at_numpy == constant == now > 700
