@@ -214,3 +214,23 @@ def test_the_bogie_script_raises_the_gc_threshold_before_numpy_loads():
     assert done.returncode == 0, done.stderr
     at_numpy, constant, now = (int(v) for v in done.stdout.split())
     assert at_numpy == constant == now > 700
+
+
+def test_the_bogie_script_freezes_the_gc_on_the_way_out_and_only_as_the_script():
+    """As the console script (``main()`` reading sys.argv) it calls gc.freeze() before the process
+    ends; with an explicit argv (tests, other programs) it leaves the collector alone."""
+    script = (
+        "import contextlib, gc, io, sys\n"
+        "import bogie_agents.cli as cli\n"
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        "    code = cli.main(['curving', '--radius', '7000', '--cant', '0.15', '--speed', '350', '--json'])\n"
+        "explicit = gc.get_freeze_count()\n"
+        "sys.argv = ['bogie', 'curving', '--radius', '7000', '--cant', '0.15', '--speed', '350', '--json']\n"
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        "    code += cli.main()\n"
+        "print(code, explicit, gc.get_freeze_count())\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    code, explicit, as_script = (int(v) for v in done.stdout.split())
+    assert code == 0 and explicit == 0 and as_script > 10_000
