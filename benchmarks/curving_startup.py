@@ -4,9 +4,9 @@
 
 CPU seconds (``time.process_time``) of each phase in one fresh process, kernels cached: the
 imports of numpy, numba, scipy.linalg (which numba's first cached-kernel load imports in any
-program, for its BLAS check) and the package (which imports no other scipy module: the elliptic
-integrals and the root finder of ``bogie_env.contact`` are :mod:`bogie_env.elliptic` and
-:mod:`bogie_env.rootfind`, not scipy.special and scipy.optimize), the
+program, for its BLAS check; imported here first so that the next phase is what scipy.special
+adds), scipy.special (which ``bogie_env.contact`` needs for the elliptic integrals; its root
+finder is :mod:`bogie_env.rootfind`, not scipy.optimize) and the package, the
 model, the root finder (with the first kernel loads), the stability check, the simulation
 fallback for an unstable root (with its kernel loads), then one more full ``steady_curving``.
 Run it twice: the first run after an edit compiles.
@@ -26,6 +26,9 @@ marks.append(("numba", time.process_time()))
 import scipy.linalg  # noqa: E402,F401  (numba's first kernel load imports it: its BLAS check)
 
 marks.append(("scipy.linalg", time.process_time()))
+import scipy.special  # noqa: E402,F401
+
+marks.append(("scipy.special", time.process_time()))
 from bogie_env.analysis import curving  # noqa: E402
 from bogie_env.dynamics import BogieModel  # noqa: E402
 

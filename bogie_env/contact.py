@@ -21,8 +21,8 @@ from functools import lru_cache
 
 import numpy as np
 from numba import njit
+from scipy.special import ellipe, ellipk
 
-from .elliptic import ellipe, ellipk  # scipy.special's, bit for bit, without its import (0.04-0.06 CPU-s here)
 from .params import BogieParams
 from .rootfind import brentq  # scipy.optimize.brentq, bit for bit, without its 0.3-s import
 

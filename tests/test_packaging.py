@@ -172,7 +172,7 @@ def test_the_readme_lists_every_command_with_exactly_its_options():
 #: env, plotting, the margins' and the distributed extras, and the scipy modules it no longer
 #: imports (each costs a noticeable part of the command's start-up, docs/performance.md).
 NOT_FOR_CURVING = ("stable_baselines3", "torch", "gymnasium", "matplotlib", "control", "ray", "optuna", "pandas",
-                   "tensorboard", "tqdm", "rich", "scipy.optimize", "scipy.integrate", "scipy.special", "bogie_env.envs.config",
+                   "tensorboard", "tqdm", "rich", "scipy.optimize", "scipy.integrate", "bogie_env.envs.config",
                    "bogie_env.envs.hunting_env", "bogie_env.envs.task")  # fmt: skip
 
 
