@@ -300,6 +300,32 @@ def start_state(bank: FilterBank) -> np.ndarray:
 
 #: The shipped gain table (written by ``python -m bogie_agents.robust``; see docs/controllers.md).
 GAINS_FILE = Path(__file__).resolve().parent / "robust_gains.json"
+#: The largest command lead a gain table may ask for (s): five control steps of the v1 env.
+MAX_LEAD_S = 0.05
+
+
+def lead_alpha(lowpass_hz: float | None, dt: float) -> float:
+    """The pole of the lead's first-order low-pass (0: no low-pass)."""
+    return 0.0 if not lowpass_hz else math.exp(-2 * math.pi * lowpass_hz * dt)
+
+
+def lead_command(u: np.ndarray, u_prev: np.ndarray, d_prev: np.ndarray, lead_s, dt: float,
+                 lowpass_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The command with a discrete lead, and the lead's new state: ``(u + k d, d)`` with
+    ``d = alpha d_prev + (1 - alpha) (u - u_prev)`` (the step's command change, low-passed at
+    ``lowpass_hz``; alpha = 0 without), ``k = lead_s / dt`` (per row, or scalar).
+
+    Why: at large amplitude the actuators' rate limits turn a saturated command into a
+    triangle that lags it (at conicity 0.1 and 230-250 km/h, a 5 Hz limit cycle with every
+    channel saturated: docs/controllers.md); the lead moves the command's reversals earlier.
+    The low-pass keeps it from amplifying the loop's gain at high frequencies. Applied before
+    the clip. Zero lead returns ``u`` unchanged."""
+    k = np.asarray(lead_s, dtype=float) / dt
+    if k.ndim == 1:
+        k = k[:, None]
+    alpha = lead_alpha(lowpass_hz, dt)
+    d = alpha * d_prev + (1.0 - alpha) * (u - u_prev)
+    return u + k * d, d
 
 
 def load_gains(path: str | Path = GAINS_FILE) -> dict:
@@ -318,7 +344,14 @@ def load_gains(path: str | Path = GAINS_FILE) -> dict:
     order = data.get("washout_order", 1)
     if isinstance(order, bool) or order not in WASHOUT_ORDERS:
         raise ConfigError(f"{str(path)!r}: washout_order = {order!r} is not allowed; allowed: {', '.join(map(str, WASHOUT_ORDERS))}")
-    return {**data, "speeds_kmh": speeds, "gains": gains}
+    lead = np.asarray(data.get("lead_s", np.zeros(speeds.size)), dtype=float)
+    if lead.shape != speeds.shape or not np.all(np.isfinite(lead)) or np.any(lead < 0) or np.any(lead > MAX_LEAD_S):
+        raise ConfigError(f"{str(path)!r}: lead_s = {data.get('lead_s')!r} is not allowed; allowed: one value per design speed, "
+                          f"each in [0, {MAX_LEAD_S:g}] s")  # fmt: skip
+    lowpass = data.get("lead_lowpass_hz")
+    if lowpass is not None and (isinstance(lowpass, bool) or not isinstance(lowpass, (int, float)) or not 0.0 < lowpass < 50.0):
+        raise ConfigError(f"{str(path)!r}: lead_lowpass_hz = {lowpass!r} is not allowed; allowed: absent, null or a number in (0, 50) Hz")
+    return {**data, "speeds_kmh": speeds, "gains": gains, "lead_s": lead}
 
 
 class RobustDampingController(Controller):
@@ -345,12 +378,20 @@ class RobustDampingController(Controller):
         self.gains = np.asarray(table["gains"], dtype=float)[:, self.active, :]  # active channels only
         self.washout_hz, self.leak_hz = float(table["washout_hz"]), float(table["leak_hz"])
         self.washout_order = int(table.get("washout_order", 1))
+        self.lead_s = np.asarray(table.get("lead_s", np.zeros(self.speeds_kmh.size)), dtype=float)
+        self.lead_lowpass_hz = table.get("lead_lowpass_hz")
         self.n_obs = len(T.SENSORS) + 1 + (len(self.active) if env_config["observation"]["include_actuators"] else 0)
         self.bank = filter_bank(self.n_obs, self.dt, self.washout_hz, self.leak_hz, self.washout_order)
         self.n_filter_states = self.bank.a.shape[0]
         self.settle = start_state(self.bank)
         self.state = np.zeros((0, self.n_filter_states))
         self.started = np.zeros(0, dtype=bool)
+        self.u_prev = np.zeros((0, len(self.active)))  # the lead's state: the previous unled command
+        self.d_prev = np.zeros((0, len(self.active)))  # and its low-passed command change
+
+    def lead_at(self, speed_kmh: np.ndarray) -> np.ndarray:
+        """(n,): the command lead (s), interpolated linearly in speed (held at the table's ends)."""
+        return np.interp(np.asarray(speed_kmh, dtype=float), self.speeds_kmh, self.lead_s)
 
     def gain_at(self, speed_kmh: np.ndarray) -> np.ndarray:
         """(n, n_act, N_SIG): the gain table interpolated linearly in speed (held at its ends)."""
@@ -364,9 +405,13 @@ class RobustDampingController(Controller):
         if rows is None or self.state.shape[0] != n_envs:
             self.state = np.zeros((n_envs, self.n_filter_states))
             self.started = np.zeros(n_envs, dtype=bool)
+            self.u_prev = np.zeros((n_envs, len(self.active)))
+            self.d_prev = np.zeros((n_envs, len(self.active)))
         else:
             self.state[rows] = 0.0
             self.started[rows] = False
+            self.u_prev[rows] = 0.0
+            self.d_prev[rows] = 0.0
 
     def signals(self, obs: np.ndarray) -> np.ndarray:
         """Advance the filters on one observation per row; the design signals (n, N_SIG), SI."""
@@ -376,6 +421,7 @@ class RobustDampingController(Controller):
         if self.state.shape[0] != y.shape[0]:
             self.reset(y.shape[0])
         fresh = ~self.started
+        self._fresh = fresh
         if np.any(fresh):
             self.state[fresh] = y[fresh] @ self.settle.T
             self.started[fresh] = True
@@ -385,8 +431,18 @@ class RobustDampingController(Controller):
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         s = self.signals(obs)
-        gains = self.gain_at(self.speed_kmh(np.asarray(obs)))
-        return np.clip(-np.einsum("nij,nj->ni", gains, s), -1.0, 1.0).astype(np.float32)
+        speed = self.speed_kmh(np.asarray(obs))
+        u = -np.einsum("nij,nj->ni", self.gain_at(speed), s)
+        if np.any(self.lead_s):
+            fresh = self._fresh
+            if self.u_prev.shape != u.shape:
+                self.u_prev, self.d_prev = u.copy(), np.zeros_like(u)
+            self.u_prev[fresh] = u[fresh]  # a row's first command after reset has no lead (no kick)
+            self.d_prev[fresh] = 0.0
+            led, self.d_prev = lead_command(u, self.u_prev, self.d_prev, self.lead_at(speed), self.dt, self.lead_lowpass_hz)
+            self.u_prev = u
+            u = led
+        return np.clip(u, -1.0, 1.0).astype(np.float32)
 
     def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray):
         """The exact linear model at a fixed speed (``bogie_agents.margins.ControllerModel``):
@@ -396,8 +452,9 @@ class RobustDampingController(Controller):
         if n_obs != self.n_obs:
             raise ConfigError(f"robust_damping: n_obs = {n_obs}, the controller takes {self.n_obs}")
         g = self.gain_at(np.array([speed_kmh]))[0]
-        return ControllerModel(self.bank.a.copy(), self.bank.b.copy(), -g @ self.bank.c, -g @ self.bank.d,
-                               "robust_damping: filter bank and interpolated gains (exact)")  # fmt: skip
+        a, b, c, d = lead_model(self.bank, g, float(self.lead_at(np.array([speed_kmh]))[0]), self.dt, self.lead_lowpass_hz)
+        return ControllerModel(a, b, c, d, "robust_damping: filter bank and interpolated gains"
+                               + (" with the command lead" if a.shape[0] > self.bank.a.shape[0] else "") + " (exact)")  # fmt: skip
 
 
 # =============================================================================================
@@ -448,8 +505,33 @@ class DesignSettings:
 GAIN_SCALE = np.array([20.0, 20.0, 20.0, 6.0, 0.1, 0.1])
 
 
-def closed_loop(plant: DesignPlant, bank: FilterBank, gains: np.ndarray, factor: float = 1.0) -> np.ndarray:
-    """The closed-loop state matrix of the design plant with ``u = -factor G s``."""
+def lead_model(bank: FilterBank, gains: np.ndarray, lead_s: float, dt: float,
+               lowpass_hz: float | None = None) -> tuple[np.ndarray, ...]:  # fmt: skip
+    """(a, b, c, d): the controller ``observation -> command`` as one discrete state space, with
+    the command lead (:func:`lead_command`) when ``lead_s`` > 0: the state is then the filter
+    bank's followed by the previous unled command ``u_{n-1}`` and the lead's low-passed change
+    ``d_{n-1}`` (``u_n = -G s_n``; ``d_n = alpha d_{n-1} + (1 - alpha)(u_n - u_{n-1})``; command
+    ``u_n + k d_n``, ``k = lead_s / dt``). Without lead: the bank with ``-G`` on its output."""
+    c, d = -gains @ bank.c, -gains @ bank.d
+    if lead_s <= 0.0:
+        return bank.a.copy(), bank.b.copy(), c, d
+    k, alpha = lead_s / dt, lead_alpha(lowpass_hz, dt)
+    n, m = bank.a.shape[0], gains.shape[0]
+    eye, zero = np.eye(m), np.zeros((m, m))
+    a = np.block([[bank.a, np.zeros((n, 2 * m))], [c, zero, zero], [(1 - alpha) * c, -(1 - alpha) * eye, alpha * eye]])
+    b = np.vstack([bank.b, d, (1 - alpha) * d])
+    gain = 1 + k * (1 - alpha)
+    return a, b, np.hstack([gain * c, -k * (1 - alpha) * eye, k * alpha * eye]), gain * d
+
+
+def closed_loop(plant: DesignPlant, bank: FilterBank, gains: np.ndarray, factor: float = 1.0, lead_s: float = 0.0,
+                dt: float = 0.01, lead_lowpass_hz: float | None = None) -> np.ndarray:  # fmt: skip
+    """The closed-loop state matrix of the design plant with ``u = -factor G s`` (and the command
+    lead ``lead_s``, :func:`lead_model`, with the control step ``dt``)."""
+    if lead_s > 0.0:
+        a, b, c, d = lead_model(bank, gains, lead_s, dt, lead_lowpass_hz)
+        c, d = factor * c, factor * d
+        return np.block([[plant.a + plant.b @ d @ plant.c, plant.b @ c], [b @ plant.c, a]])
     cc, dc = -factor * gains @ bank.c, -factor * gains @ bank.d
     return np.block([[plant.a + plant.b @ dc @ plant.c, plant.b @ cc], [bank.b @ plant.c, bank.a]])
 
@@ -518,6 +600,8 @@ def save_gains(table: dict, path: str | Path) -> None:
     from bogie_env.fileio import write_text_atomic
 
     out = {**table, "speeds_kmh": [float(v) for v in table["speeds_kmh"]], "gains": np.asarray(table["gains"]).tolist()}
+    if "lead_s" in table:
+        out["lead_s"] = [float(v) for v in table["lead_s"]]
     write_text_atomic(Path(path), json.dumps(out, indent=1))
 
 
@@ -663,7 +747,8 @@ def route_run(spec: str, env_config: dict, steps: int = 6000, seeds: int = 6) ->
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m bogie_agents.robust design [--out FILE]``: design the gain table for the v1 env;
+    """``python -m bogie_agents.robust design [--out FILE]``: design the gain table for the v1 env (stage 1);
+    ``python -m bogie_agents.robust retune --base STAGE1 [--out FILE]``: stage 2 (:mod:`bogie_agents.robust_track`);
     ``python -m bogie_agents.robust report``: its linear onsets by conicity and its margins;
     ``python -m bogie_agents.robust ramp --policy NAME``: onsets on the v1 ramp by conicity;
     ``python -m bogie_agents.robust route``: closed-loop curving on the v1 route variant."""
@@ -674,7 +759,8 @@ def main(argv: list[str] | None = None) -> None:
     from bogie_env.envs.config import make_config
 
     parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("what", choices=("design", "report", "ramp", "route"))
+    parser.add_argument("what", choices=("design", "retune", "report", "ramp", "route"))
+    parser.add_argument("--base", default=None, help="retune: stage 1's gain table (python -m bogie_agents.robust design --out FILE)")
     parser.add_argument("--steps", type=int, default=6000, help="route: env steps per episode at most")
     parser.add_argument("--policy", action="append", help="ramp: policy names (default: passive and robust_damping)")
     parser.add_argument("--conicities", default="0.025,0.05,0.1,0.2,0.3", help="ramp: comma-separated conicities")
@@ -702,6 +788,27 @@ def main(argv: list[str] | None = None) -> None:
                 span = f"{min(hunted):g} / {float(np.median(hunted)):g} / {max(hunted):g}" if hunted else "none"
                 print(f"{spec} conicity {c:g}: hunted {len(hunted)}/{args.seeds}, onset min / median / max {span} km/h; "
                       f"onsets {r['onset_kmh']}; peak forces {r['peak_force']}", flush=True)  # fmt: skip
+        return
+    if args.what == "retune":
+        from .robust_track import TrackSettings, retune_track
+
+        if args.base is None:
+            parser.error("retune needs --base (stage 1's table)")
+        track = TrackSettings()
+        start, rows = time.time(), len(track.speeds_kmh)
+        count = [0]
+
+        def report_row(row: dict) -> None:
+            count[0] += 1
+            elapsed = time.time() - start
+            print(f"[{count[0]}/{rows}] {json.dumps(row)}; {elapsed:.0f} s, about {elapsed / count[0] * (rows - count[0]):.0f} s left",
+                  file=sys.stderr, flush=True)  # fmt: skip
+
+        base = load_gains(args.base)
+        table = retune_track(config, base, track, progress=report_row)
+        table["command"] = f"{base.get('command', '?')} --out STAGE1; python -m bogie_agents.robust retune --variant {args.variant} --base STAGE1"
+        save_gains(table, args.out)
+        print(f"wrote {args.out}")
         return
     start = time.time()
     settings = DesignSettings(washout_order=args.washout_order)

@@ -24,6 +24,8 @@ from bogie_agents.robust import (
     RobustDampingController,
     closed_loop,
     filter_bank,
+    lead_command,
+    lead_model,
     load_gains,
     save_gains,
 )
@@ -86,19 +88,25 @@ def test_shipped_gains_stabilise_the_design_model(config, controller, conicity):
         ctrl = controller.controller_model(model.n_obs, v, None)
         bank = filter_bank(model.n_obs, config["dt"], controller.washout_hz, controller.leak_hz)
         gains = controller.gain_at(np.array([v]))[0]
-        assert np.allclose(-gains @ bank.c, ctrl.c) and np.allclose(-gains @ bank.d, ctrl.d)
+        lead = float(controller.lead_at(np.array([v]))[0])
+        expected = lead_model(bank, gains, lead, config["dt"], controller.lead_lowpass_hz)
+        assert all(np.allclose(x, y) for x, y in zip(expected, (ctrl.a, ctrl.b, ctrl.c, ctrl.d)))
         for plant, factor in ((model.plant(v), 1.0), (model.plant(v), 2.0), (late.plant(v), 1.0)):
-            radius = np.max(np.abs(np.linalg.eigvals(closed_loop(plant, bank, gains, factor))))
+            radius = np.max(np.abs(np.linalg.eigvals(closed_loop(plant, bank, gains, factor, lead, config["dt"],
+                                                                 controller.lead_lowpass_hz))))  # fmt: skip
             assert radius < 1.0, (conicity, v, factor, radius)
 
 
-def test_linear_model_matches_act(config, controller):
-    """At a fixed measured speed the controller is linear: act = the model, to float32 rounding."""
+@pytest.mark.parametrize("speed_kmh", [330.0, 255.0])
+def test_linear_model_matches_act(config, controller, speed_kmh):
+    """At a fixed measured speed the controller is linear: act = the model, to float32 rounding
+    (255 km/h: with the command lead, whose model has its own state)."""
+    assert (controller.lead_at(np.array([speed_kmh]))[0] > 0) == (speed_kmh == 255.0)
     rng = np.random.default_rng(3)
     speed = len(T.SENSORS)
     y0 = 0.3 * rng.standard_normal(controller.n_obs)
-    y0[speed] = (330.0 - T.SPEED_CENTRE_KMH) / T.SPEED_SCALE_KMH
-    model = controller.controller_model(controller.n_obs, 330.0, y0)
+    y0[speed] = (speed_kmh - T.SPEED_CENTRE_KMH) / T.SPEED_SCALE_KMH
+    model = controller.controller_model(controller.n_obs, speed_kmh, y0)
     dy = 0.003 * rng.standard_normal((30, controller.n_obs))
     dy[:, speed] = 0.0
     controller.reset(1)
@@ -235,3 +243,67 @@ def test_bad_gain_table_is_named(tmp_path, controller):
         load_gains(path)
     with pytest.raises(ConfigError, match="observation.type"):
         RobustDampingController(make_config({"randomize": {}, "observation": {"type": "state"}}, variant="v1"))
+
+
+def test_command_lead(tmp_path, config):
+    """``lead_command`` is ``u + k d`` with ``d`` the low-passed command change (the plain change
+    without low-pass); in ``act`` (no low-pass) it scales a sinusoidal command by the discrete
+    lead's response ``1 + k (1 - 1/z)``, leaves a table without ``lead_s`` bit for bit as before,
+    starts a row without a kick, and a table's bad ``lead_s`` / ``lead_lowpass_hz`` is a named error.
+    (The low-passed lead in ``act`` is checked against its linear model in
+    test_linear_model_matches_act at 255 km/h.)"""
+    u, prev, d = np.array([[0.2, -0.1]]), np.array([[0.1, 0.1]]), np.array([[0.05, 0.0]])
+    assert np.allclose(lead_command(u, prev, d, np.array([0.02]), 0.01)[0], u + 2.0 * (u - prev))
+    alpha = np.exp(-2 * np.pi * 4.0 * 0.01)
+    led_u, new_d = lead_command(u, prev, d, np.array([0.02]), 0.01, 4.0)
+    assert np.allclose(new_d, alpha * d + (1 - alpha) * (u - prev)) and np.allclose(led_u, u + 2.0 * new_d)
+    assert np.array_equal(lead_command(u, prev, d, np.array([0.0]), 0.01, 4.0)[0], u)
+    table = load_gains()
+    table.pop("lead_s")
+    plain = RobustDampingController(config, table)
+    table["lead_s"] = np.full(table["speeds_kmh"].size, 0.01)
+    table["lead_lowpass_hz"] = None
+    led = RobustDampingController(config, table)
+    table["lead_s"] = np.zeros(table["speeds_kmh"].size)
+    zero = RobustDampingController(config, table)
+    rng = np.random.default_rng(5)
+    n_obs, speed = plain.n_obs, len(T.SENSORS)
+    hz, dt = 4.0, config["dt"]
+    y = 0.05 * rng.standard_normal(n_obs)
+    y[speed] = (250.0 - T.SPEED_CENTRE_KMH) / T.SPEED_SCALE_KMH
+    obs = np.array([y + 0.02 * np.sin(2 * np.pi * hz * dt * k) * (np.arange(n_obs) != speed) for k in range(600)])
+    outs = []
+    for ctrl in (plain, led, zero):
+        ctrl.reset(1)
+        outs.append(np.array([ctrl.act(o[None].astype(np.float32))[0] for o in obs]))
+    np.testing.assert_array_equal(outs[0], outs[2])
+    np.testing.assert_array_equal(outs[0][0], outs[1][0])  # the first command after reset has no lead
+    assert np.max(np.abs(outs[0])) < 1.0  # inside the clip: the lead is linear here
+    z = np.exp(2j * np.pi * hz * dt)
+    expected = 1.0 + 1.0 * (1.0 - 1.0 / z)  # k = lead / dt = 1
+    t = np.arange(300, 600)
+    basis = np.exp(2j * np.pi * hz * dt * t)
+    for ch in range(outs[0].shape[1]):
+        a = np.vdot(basis, outs[0][t, ch] - outs[0][t, ch].mean())
+        b = np.vdot(basis, outs[1][t, ch] - outs[1][t, ch].mean())
+        assert np.isclose(b / a, expected, rtol=2e-3), (ch, b / a, expected)
+    path = tmp_path / "gains.json"
+    for bad in ([-0.01], [0.2], "short"):
+        table["lead_s"] = np.zeros(3) if bad == "short" else np.full(table["speeds_kmh"].size, bad[0])
+        save_gains(table, path)
+        with pytest.raises(ConfigError, match="lead_s"):
+            load_gains(path)
+    table["lead_s"] = np.zeros(table["speeds_kmh"].size)
+    table["lead_lowpass_hz"] = -4.0
+    save_gains(table, path)
+    with pytest.raises(ConfigError, match="lead_lowpass_hz = -4.0"):
+        load_gains(path)
+
+
+def test_shipped_lead_spares_the_margin_speeds(controller):
+    """The shipped command lead acts below 300 km/h only: the nominal conicity's margin speeds
+    (300-450 km/h) see stage 1's controller model."""
+    assert np.all(controller.lead_at(np.arange(300.0, 601.0, 10.0)) == 0.0)
+    assert controller.lead_at(np.array([250.0]))[0] > 0.0
+    model = controller.controller_model(controller.n_obs, 300.0, None)
+    assert model.n_states == controller.bank.a.shape[0]
