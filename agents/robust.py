@@ -25,7 +25,9 @@ v_b]`` and G a gain matrix per design speed, interpolated linearly in the measur
 The gains come from :func:`tune` (see docs/controllers.md): a multi-model search over the
 conicity grid and the speed range on the sampled design model (:func:`design_plant`: the
 bogie's linearisation, the actuators' lag, zero-order hold, the loop delay and the sensors'
-anti-alias filters), with the margin floors as constraints.
+anti-alias filters), with the margin floors as constraints; then from the second stage of
+:mod:`bogie_agents.robust_track` (a track-forced re-tune of the 90-270 km/h rows and the
+command lead :func:`lead_command` at 240-270 km/h, zero from 300 km/h).
 """
 
 from __future__ import annotations
