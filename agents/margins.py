@@ -339,9 +339,30 @@ def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = No
     a_c[N_STATES:, N_STATES:] = -np.diag(bandwidth)
     b_c = np.zeros((n, n_act))
     b_c[N_STATES:, :] = np.diag(bandwidth * max_force)
-    ad, bd = discretize(a_c, b_c, config["dt"])
     delays = _delay_steps(config, active)
     rows, weights = sensor_filters(config)
+    c_xf = _observation_jacobian(x_eq, force_eq, speed, config, model)
+    a, b, c, c_clean, filter_start = sampled_loop_plant(a_c, b_c, c_xf, config["dt"], delays, rows, weights)
+    return PlantModel(a, b, c, config["dt"], speed, np.asarray(x_eq, float), force_eq, active, max_force, bandwidth, delays,
+                      config["observation"]["type"], bool(config["observation"]["include_actuators"]), model,
+                      tuple(rows), np.asarray(weights), c_clean, filter_start, a_c, b_c)  # fmt: skip
+
+
+def sampled_loop_plant(a_c: np.ndarray, b_c: np.ndarray, c_xf: np.ndarray, dt: float, delays, rows, weights
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:  # fmt: skip
+    """The matrices of a :class:`PlantModel` from its continuous part: ``a_c, b_c`` of
+    ``[x, F]`` (bogie states and channel forces, the normalised command as input), ``c_xf`` the
+    clean observation of ``[x, F]``, sampled at ``dt`` with a zero-order hold; ``delays[j]``
+    whole steps of command delay in channel j (a shift register per channel, the oldest command
+    driving the lag) and the sensor filters of observation ``rows`` with ``weights``. Returns
+    ``(a, b, c, c_clean, filter_start)``. One assembly for :func:`plant_model` and any other
+    continuous model of the same structure (``bogie_agents.robust.DesignModel.loop_plant``), so
+    that :meth:`PlantModel.with_extra_delay` and :meth:`PlantModel.with_delay_s` apply to it."""
+    n, n_act = a_c.shape[0], b_c.shape[1]
+    if len(delays) != n_act or len(rows) != len(weights):
+        raise ValueError(f"sampled_loop_plant: {len(delays)} delays for {n_act} channels, {len(rows)} filter rows "
+                         f"for {len(weights)} weights; need one delay per channel and one weight per row")  # fmt: skip
+    ad, bd = discretize(a_c, b_c, dt)
     n_reg, n_f = sum(delays), len(rows)
     n_all = n + n_reg + n_f
     a = np.zeros((n_all, n_all))
@@ -358,7 +379,6 @@ def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = No
             a[pos + i, pos + i - 1] = 1.0
         a[:n, pos + d - 1] = bd[:, j]  # the oldest drives the lag
         pos += d
-    c_xf = _observation_jacobian(x_eq, force_eq, speed, config, model)
     c = np.zeros((c_xf.shape[0], n_all))
     c[:, :n] = c_xf
     c_clean = c.copy()
@@ -368,9 +388,7 @@ def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = No
         c[row] = w * clean
         c[row, n + n_reg + i] = 1.0 - w
         a[n + n_reg + i] = c[row]
-    return PlantModel(a, b, c, config["dt"], speed, np.asarray(x_eq, float), force_eq, active, max_force, bandwidth, delays,
-                      config["observation"]["type"], bool(config["observation"]["include_actuators"]), model,
-                      tuple(rows), np.asarray(weights), c_clean, n + n_reg, a_c, b_c)  # fmt: skip
+    return a, b, c, c_clean, n + n_reg
 
 
 # =============================================================================================

@@ -36,6 +36,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -49,6 +50,9 @@ from bogie_env.params import ConfigError
 from bogie_env.stability import KMH, linearize
 
 from .controllers import Controller, discretize
+
+if TYPE_CHECKING:
+    from .margins import PlantModel
 
 LAT = list(LATERAL_STATES)
 N_LAT = len(LAT)
@@ -189,6 +193,26 @@ class DesignModel:
         c_all[:k, :n_d] = w @ c_d[:k]
         c_all[:k, n_d:] = np.eye(k) - w
         return DesignPlant(a_all, b_all, c_all, speed_kmh, self.conicity)
+
+    def loop_plant(self, speed_kmh: float) -> PlantModel:
+        """The same sampled plant as :meth:`plant` (same transfer function) as a
+        ``bogie_agents.margins.PlantModel``, assembled by ``margins.sampled_loop_plant``: a
+        command register per channel and the continuous part kept, so that ``margins.LinearLoop``
+        and ``loop_margins`` (extra whole-step and fractional delays per channel) apply to the
+        design model. Its bogie state is the 16 lateral states (``LATERAL_STATES``), not 20;
+        ``x_eq`` is the straight-track equilibrium of the linearisation."""
+        from .margins import PlantModel, sampled_loop_plant
+
+        a_c, b_c = self.continuous(speed_kmh / KMH)
+        sensed = bool(self.config.get("sensors", {}).get("enabled", False))
+        rows = tuple(range(len(SENSOR_NAMES))) if sensed else ()
+        weights = self.weights if sensed else np.zeros(0)
+        delays = (self.delay,) * self.n_act
+        a, b, c, c_clean, filter_start = sampled_loop_plant(a_c, b_c, self.observation_matrix(a_c), self.dt, delays, rows, weights)
+        return PlantModel(a, b, c, self.dt, speed_kmh / KMH, np.asarray(self.lin.equilibrium, float), np.zeros(self.n_act),
+                          list(self.active), self.max_force, self.bandwidth, delays, self.config["observation"]["type"],
+                          self.include_actuators, self.model, rows, np.asarray(weights, float), c_clean, filter_start,
+                          a_c, b_c)  # fmt: skip
 
 
 # =============================================================================================
@@ -625,32 +649,18 @@ def linear_onsets(controller: "RobustDampingController", env_config: dict, conic
     return out
 
 
-@dataclass
-class _LoopPlant:
-    """The attributes of ``margins.PlantModel`` that ``margins.LinearLoop`` uses."""
-
-    a: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    dt: float
-    delay_steps: int
-    channel_names: list
-    n_act: int
-
-
 def design_margins(controller: "RobustDampingController", env_config: dict, speeds_kmh=(300.0, 350.0, 400.0, 450.0, 500.0),
                    conicity: float | None = None) -> list[dict]:  # fmt: skip
     """Per-loop margins (``bogie_agents.margins.loop_margins``, python-control) of the design
-    model with the sensor filters and the loop delay, at the given speeds."""
+    model with the sensor filters and the loop delay (:meth:`DesignModel.loop_plant`), at the
+    given speeds."""
     from .margins import LinearLoop, loop_margins
 
     model = DesignModel(env_config, conicity)
-    names = [CHANNEL_NAMES[k] for k in model.active]
     out = []
     for v in speeds_kmh:
-        p = model.plant(v)
-        plant = _LoopPlant(p.a, p.b, p.c, model.dt, model.delay, names, model.n_act)
-        out.append(loop_margins(LinearLoop(plant, controller.controller_model(model.n_obs, v, None), v, np.zeros(model.n_act))))
+        ctrl = controller.controller_model(model.n_obs, v, None)
+        out.append(loop_margins(LinearLoop(model.loop_plant(v), ctrl, v, np.zeros(model.n_act))))
     return out
 
 

@@ -10,7 +10,10 @@
 - washout: a constant observation (a steady curve, a sensor bias) gives zero steady command,
   in ``act`` and as the model's exact DC gain; a reset transient of the accelerometer gives no
   fake velocity; the second-order washout against its transfer functions and a ramp;
-- per-row state: ``reset(rows)`` restarts only those rows; a batch row equals a lone run.
+- per-row state: ``reset(rows)`` restarts only those rows; a batch row equals a lone run;
+- the report's margins (``design_margins`` on ``DesignModel.loop_plant``) against the design
+  plant's own transfer function and delays, and against ``bogie margins``' loop of the policy
+  (full 20-state plant): the same closed-loop eigenvalues, gain and delay margins.
 """
 
 import numpy as np
@@ -23,12 +26,15 @@ from bogie_agents.robust import (
     DesignModel,
     RobustDampingController,
     closed_loop,
+    design_margins,
     filter_bank,
     lead_command,
     lead_model,
     load_gains,
+    main,
     save_gains,
 )
+from bogie_env.actuators import CHANNEL_NAMES
 from bogie_env.envs import task as T
 from bogie_env.envs.config import make_config, merge_config
 from bogie_env.envs.sensors import SENSOR_NAMES
@@ -307,3 +313,62 @@ def test_shipped_lead_spares_the_margin_speeds(controller):
     assert controller.lead_at(np.array([250.0]))[0] > 0.0
     model = controller.controller_model(controller.n_obs, 300.0, None)
     assert model.n_states == controller.bank.a.shape[0]
+
+
+def test_loop_plant_is_the_design_plant(config):
+    """``loop_plant`` (margins' per-channel register layout, for ``loop_margins``) has the design
+    plant's transfer function; one more whole step, or ``dt`` more seconds, of delay in every
+    channel gives the design plant with ``delay_steps + 1``."""
+    model = DesignModel(config, 0.1)
+    late = DesignModel(merge_config(config, {"actuators": {n: {"delay_steps": 2} for n in config["actuators"]}}), 0.1)
+    plant = model.loop_plant(250.0)
+    assert plant.delay_steps == (1,) * model.n_act and plant.channel_names == [CHANNEL_NAMES[k] for k in model.active]
+    design, design_late = model.plant(250.0), late.plant(250.0)
+    for w in (0.3, 2.0, 15.0, 40.0, 200.0):  # rad/s
+        z = np.exp(1j * w * config["dt"])
+        expected = _response(design.a, design.b, design.c, z)
+        assert np.allclose(_response(plant.a, plant.b, plant.c, z), expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+        expected = _response(design_late.a, design_late.b, design_late.c, z)
+        for other in (plant.with_extra_delay(1), plant.with_delay_s(config["dt"])):
+            got = _response(other.a, other.b, other.c, z)
+            assert np.allclose(got, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+
+
+def test_report_margins_agree_with_the_margins_loop(config, controller):
+    """The report's margin row (``design_margins``, the design model through
+    ``margins.loop_margins``) against ``bogie margins``' own loop of the policy at 450 km/h
+    (20-state Jacobian at the equilibrium, the policy's controller model at its operating
+    observation): the same closed-loop eigenvalues, the same whole-step delay margins by
+    eigenvalues, and python-control's gain and delay margins to the accuracy of its frequency
+    response (about 3e-4 of the loop's peak on these ill-conditioned state spaces)."""
+    row = design_margins(controller, config, speeds_kmh=(450.0,))[0]
+    full = M.linear_loop(load_policy("robust_damping", config), config, 450.0)
+    mine = DesignModel(config)
+    loop = M.LinearLoop(mine.loop_plant(450.0), controller.controller_model(mine.n_obs, 450.0, None), 450.0, np.zeros(mine.n_act))
+    eig, eig_full = loop.eigenvalues(), full.eigenvalues()
+    assert max(np.min(np.abs(eig_full - e)) for e in eig) < 1e-9  # the full loop adds 4 vertical modes
+    assert row["closed_loop_stable"] and row["closed_loop_growth_rate_per_s"] == pytest.approx(full.growth_rate(), abs=1e-8)
+    assert list(row["loops"]) == full.plant.channel_names
+    assert row["all_loops_extra_delay_steps"] == full.tolerated_extra_steps(None, M.MAX_EXTRA_DELAY_STEPS) == 2
+    omega = M.frequency_grid(config["dt"])
+    for k, (name, m) in enumerate(row["loops"].items()):
+        assert m["existing_delay_s"] == pytest.approx(config["dt"])
+        assert m["delay_margin_steps"] == full.tolerated_extra_steps(k, M.MAX_EXTRA_DELAY_STEPS), name
+        other = M.siso_margins(full.broken_loop(k), omega)
+        assert m["gain_margin"] == pytest.approx(other["gain_margin"], rel=2e-3), name
+        assert (m["delay_margin_s"] is None) == (other["delay_margin_s"] is None), name
+        if m["delay_margin_s"] is not None:
+            assert m["delay_margin_s"] == pytest.approx(other["delay_margin_s"], rel=2e-3), name
+            assert m["delay_margin_steps"] in (None, int(m["delay_margin_s"] / config["dt"])), name
+
+
+@pytest.mark.slow
+def test_report_runs(config, capsys):
+    """``python -m bogie_agents.robust report`` end to end: the onsets and one stable margin row
+    per speed, each loop named."""
+    main(["report"])
+    out = capsys.readouterr().out
+    assert "conicity 0.025: first unstable > 600 km/h" in out
+    rows = [line for line in out.splitlines() if line.strip().split(" ")[1:2] == ["km/h:"]]
+    assert len(rows) == 5 and not any("unstable" in r for r in rows), out
+    assert all(all(name in r for name in CHANNEL_NAMES) and "disk margin" in r for r in rows), out
