@@ -758,6 +758,19 @@ def route_run(spec: str, env_config: dict, steps: int = 6000, seeds: int = 6) ->
             "mean_abs_force_in_curves": (absolute / max(n_curve, 1)).round(0).tolist()}  # fmt: skip
 
 
+def _progress_printer(total: int):
+    """A callback that prints ``[k/total] message`` with the elapsed and the estimated remaining time."""
+    start, done = time.time(), [0]
+
+    def progress(message: str) -> None:
+        done[0] += 1
+        elapsed = time.time() - start
+        print(f"[{done[0]}/{total}] {message}; {elapsed:.0f} s, about {elapsed / done[0] * (total - done[0]):.0f} s left",
+              file=sys.stderr, flush=True)  # fmt: skip
+
+    return progress
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m bogie_agents.robust design [--out FILE]``: design the gain table for the v1 env (stage 1);
     ``python -m bogie_agents.robust retune --base STAGE1 [--out FILE]``: stage 2 (:mod:`bogie_agents.robust_track`);
@@ -807,33 +820,15 @@ def main(argv: list[str] | None = None) -> None:
         if args.base is None:
             parser.error("retune needs --base (stage 1's table)")
         track = TrackSettings()
-        start, rows = time.time(), len(track.speeds_kmh)
-        count = [0]
-
-        def report_row(row: dict) -> None:
-            count[0] += 1
-            elapsed = time.time() - start
-            print(f"[{count[0]}/{rows}] {json.dumps(row)}; {elapsed:.0f} s, about {elapsed / count[0] * (rows - count[0]):.0f} s left",
-                  file=sys.stderr, flush=True)  # fmt: skip
-
+        report_row = _progress_printer(len(track.speeds_kmh))
         base = load_gains(args.base)
-        table = retune_track(config, base, track, progress=report_row)
+        table = retune_track(config, base, track, progress=lambda row: report_row(json.dumps(row)))
         table["command"] = f"{base.get('command', '?')} --out STAGE1; python -m bogie_agents.robust retune --variant {args.variant} --base STAGE1"
         save_gains(table, args.out)
         print(f"wrote {args.out}")
         return
-    start = time.time()
     settings = DesignSettings(washout_order=args.washout_order)
-    n = len(settings.speeds_kmh)
-    done = [0]
-
-    def progress(message: str) -> None:
-        done[0] += 1
-        elapsed = time.time() - start
-        print(f"[{done[0]}/{n}] {message}; {elapsed:.0f} s, about {elapsed / done[0] * (n - done[0]):.0f} s left",
-              file=sys.stderr, flush=True)  # fmt: skip
-
-    table = tune(config, settings, progress)
+    table = tune(config, settings, _progress_printer(len(settings.speeds_kmh)))
     table["command"] = f"python -m bogie_agents.robust design --variant {args.variant}" + (
         f" --washout-order {args.washout_order}" if args.washout_order != 1 else "")
     save_gains(table, args.out)

@@ -14,12 +14,17 @@ import sys
 APPLICATION = ("bogie_agents", "stable_baselines3", "torch")
 
 
+def fresh_interpreter_output(script: str, cwd=None) -> str:
+    """The last line a fresh interpreter prints running ``script`` (which must succeed)."""
+    done = subprocess.run([sys.executable, "-c", script], cwd=cwd, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip().splitlines()[-1]
+
+
 def modules_after(code: str, tmp_path) -> set[str]:
     """Top-level module names loaded by a fresh interpreter after running ``code``."""
     script = code + "\nimport json, sys\nprint(json.dumps(sorted({m.split('.')[0] for m in sys.modules})))\n"
-    done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr
-    return set(json.loads(done.stdout.strip().splitlines()[-1]))
+    return set(json.loads(fresh_interpreter_output(script, tmp_path)))
 
 
 def test_library_modules_import_neither_the_agents_nor_sb3_nor_torch(tmp_path):
@@ -186,9 +191,7 @@ def test_the_bogie_curving_command_imports_nothing_it_does_not_use(tmp_path):
         "assert code == 0 and json.loads(out.getvalue())['stable']\n"
         "print(json.dumps(sorted(sys.modules)))\n"
     )
-    done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr
-    loaded = set(json.loads(done.stdout.strip().splitlines()[-1]))
+    loaded = set(json.loads(fresh_interpreter_output(script, tmp_path)))
     unwanted = sorted(name for name in NOT_FOR_CURVING if name in loaded or any(m.startswith(name + ".") for m in loaded))
     assert not unwanted, unwanted
     assert "bogie_env.analysis.curving" in loaded  # the check ran the command, not an import error
@@ -210,9 +213,7 @@ def test_the_bogie_script_raises_the_gc_threshold_before_numpy_loads():
         "import bogie_agents.cli as cli\n"
         "print(seen['numpy'], cli.GC_YOUNG_THRESHOLD, gc.get_threshold()[0])\n"
     )
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr
-    at_numpy, constant, now = (int(v) for v in done.stdout.split())
+    at_numpy, constant, now = (int(v) for v in fresh_interpreter_output(script).split())
     assert at_numpy == constant == now > 700
 
 
@@ -230,7 +231,5 @@ def test_the_bogie_script_freezes_the_gc_on_the_way_out_and_only_as_the_script()
         "    code += cli.main()\n"
         "print(code, explicit, gc.get_freeze_count())\n"
     )
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr
-    code, explicit, as_script = (int(v) for v in done.stdout.split())
+    code, explicit, as_script = (int(v) for v in fresh_interpreter_output(script).split())
     assert code == 0 and explicit == 0 and as_script > 10_000
