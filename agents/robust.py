@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import json
 import math
+import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -778,8 +780,6 @@ def main(argv: list[str] | None = None) -> None:
     ``python -m bogie_agents.robust ramp --policy NAME``: onsets on the v1 ramp by conicity;
     ``python -m bogie_agents.robust route``: closed-loop curving on the v1 route variant."""
     import argparse
-    import sys
-    import time
 
     from bogie_env.envs.config import make_config
 

@@ -372,3 +372,14 @@ def test_report_runs(config, capsys):
     rows = [line for line in out.splitlines() if line.strip().split(" ")[1:2] == ["km/h:"]]
     assert len(rows) == 5 and not any("unstable" in r for r in rows), out
     assert all(all(name in r for name in CHANNEL_NAMES) and "disk margin" in r for r in rows), out
+
+
+def test_progress_printer_counts_and_estimates_the_time_left(capsys):
+    from bogie_agents.robust import _progress_printer
+
+    progress = _progress_printer(3)
+    progress("row a")
+    progress("row b")
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].startswith("[1/3] row a; ") and lines[1].startswith("[2/3] row b; ")
+    assert all(line.endswith(" s left") for line in lines)
