@@ -1,9 +1,10 @@
-"""The curving columns with v1's integration step and half of it.
+"""The curving columns at v1's integration step and at half of it.
 
     PYTHONPATH=. python benchmarks/curving_step_convergence.py [--policy pretrained] [--seeds 8]
 
-Every shipped route at its design speed, 10 and 20 RK4 substeps per 10 ms env step
-(``integration.n_sub``; passive is rerun at each step); prints JSON: per route and step, the
+Every shipped route at its design speed, at the RK4 substeps per 10 ms env step that v1's
+accuracy criterion chooses for the curving runs (``integration.n_sub`` null) and at twice as many
+(passive is rerun at each step); prints JSON: the chosen substeps, then per route and step, the
 wear number, flange-contact time, peak Y/Q, max ΣY rms, the excess over passive and whether the
 controller is no worse than passive.
 """
@@ -13,8 +14,10 @@ from __future__ import annotations
 import argparse
 import json
 
-from bogie_agents.curving_evaluation import curving_columns
+from bogie_agents.curving_evaluation import CurvingSettings, curving_columns, route_config
 from bogie_env.envs.config import make_config
+from bogie_env.envs.task import HuntingTask
+from bogie_env.route import available_routes
 
 FIELDS = ("wear_number_n", "flange_contact_s", "peak_y_over_q", "max_sum_y_rms_n")
 
@@ -24,10 +27,12 @@ def main() -> None:
     parser.add_argument("--policy", action="append", default=None)
     parser.add_argument("--seeds", type=int, default=8)
     args = parser.parse_args()
-    out: dict[str, dict] = {}
+    default = make_config(None, variant="v1")
+    chosen = HuntingTask(1, route_config(default, list(available_routes()), "sensors", CurvingSettings().nominal)).n_sub
+    out: dict[str, dict] = {"chosen_substeps": chosen}
     for policy in args.policy or ["pretrained"]:
-        for n_sub in (10, 20):
-            config = make_config({"integration": {"n_sub": n_sub}}, variant="v1")
+        for n_sub in (chosen, 2 * chosen):
+            config = default if n_sub == chosen else make_config({"integration": {"n_sub": n_sub}}, variant="v1")
             result = curving_columns(policy, config, seeds=args.seeds, progress=False)
             for route, columns in result["routes"].items():
                 row = {k: round(float(columns[k]), 4) for k in FIELDS}
