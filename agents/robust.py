@@ -356,6 +356,27 @@ def lead_command(u: np.ndarray, u_prev: np.ndarray, d_prev: np.ndarray, lead_s, 
     return u + k * d, d
 
 
+def _table_numbers(data: dict, key: str, path: str | Path, default: list | None = None) -> np.ndarray:
+    """``data[key]`` of a gain table as a float array: a number or (nested, rectangular) lists of
+    numbers; anything else (strings, booleans, objects, ragged lists, a missing key without
+    ``default``) is a :class:`ConfigError` naming the file, the field and its value."""
+    value = data.get(key, default)
+
+    def numeric(v) -> bool:
+        if isinstance(v, list):
+            return all(numeric(x) for x in v)
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    if numeric(value):
+        try:
+            return np.asarray(value, dtype=float)
+        except ValueError:  # ragged lists
+            pass
+    shown = repr(value)
+    shown = shown if len(shown) <= 200 else shown[:200] + "..."
+    raise ConfigError(f"{str(path)!r}: {key} = {shown} is not allowed; allowed: numbers (a list, or nested lists of equal length)")
+
+
 def load_gains(path: str | Path = GAINS_FILE) -> dict:
     """The gain table: design speeds (km/h), gains (n_speeds, 4 channels, N_SIG signals) in
     normalised command per SI signal unit, the filter corners, the washout order (``washout_order``,
@@ -363,8 +384,8 @@ def load_gains(path: str | Path = GAINS_FILE) -> dict:
     data = json.loads(Path(path).read_text())
     if tuple(data.get("signals", ())) != SIGNALS or tuple(data.get("channels", ())) != tuple(CHANNEL_NAMES):
         raise ConfigError(f"{str(path)!r}: the gain table's signals/channels are not {SIGNALS} / {tuple(CHANNEL_NAMES)}")
-    speeds = np.asarray(data["speeds_kmh"], dtype=float)
-    gains = np.asarray(data["gains"], dtype=float)
+    speeds = _table_numbers(data, "speeds_kmh", path)
+    gains = _table_numbers(data, "gains", path)
     if gains.shape != (speeds.size, len(CHANNEL_NAMES), N_SIG) or not np.all(np.diff(speeds) > 0):
         raise ConfigError(f"{str(path)!r}: gains must be (n_speeds, {len(CHANNEL_NAMES)}, {N_SIG}) over increasing speeds")
     if not (np.all(np.isfinite(gains)) and np.all(np.isfinite(speeds))):
@@ -372,7 +393,7 @@ def load_gains(path: str | Path = GAINS_FILE) -> dict:
     order = data.get("washout_order", 1)
     if isinstance(order, bool) or order not in WASHOUT_ORDERS:
         raise ConfigError(f"{str(path)!r}: washout_order = {order!r} is not allowed; allowed: {', '.join(map(str, WASHOUT_ORDERS))}")
-    lead = np.asarray(data.get("lead_s", np.zeros(speeds.size)), dtype=float)
+    lead = _table_numbers(data, "lead_s", path, [0.0] * speeds.size)
     if lead.shape != speeds.shape or not np.all(np.isfinite(lead)) or np.any(lead < 0) or np.any(lead > MAX_LEAD_S):
         raise ConfigError(f"{str(path)!r}: lead_s = {data.get('lead_s')!r} is not allowed; allowed: one value per design speed, "
                           f"each in [0, {MAX_LEAD_S:g}] s")  # fmt: skip

@@ -16,6 +16,8 @@
   (full 20-state plant): the same closed-loop eigenvalues, gain and delay margins.
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -217,10 +219,16 @@ def test_gain_table_washout_order(tmp_path, config, controller):
         load_gains(path)
 
 
-def test_rows_keep_their_own_state(config):
+@pytest.mark.parametrize("speed_kmh", [None, 250.0])
+def test_rows_keep_their_own_state(config, speed_kmh):
+    """Each row has its own filter and command-lead state; a row reset alone (``reset(n, rows)``)
+    then acts as a fresh controller does (250 km/h: with the shipped command lead)."""
     rng = np.random.default_rng(1)
     a, b = RobustDampingController(config), RobustDampingController(config)
     obs = 0.2 * rng.standard_normal((40, 3, a.n_obs)).astype(np.float32)
+    if speed_kmh is not None:
+        assert a.lead_at(np.array([speed_kmh]))[0] > 0.0
+        obs[:, :, len(T.SENSORS)] = (speed_kmh - T.SPEED_CENTRE_KMH) / T.SPEED_SCALE_KMH
     a.reset(3)
     b.reset(1)
     for k in range(40):
@@ -300,6 +308,13 @@ def test_command_lead(tmp_path, config):
         with pytest.raises(ConfigError, match="lead_s"):
             load_gains(path)
     table["lead_s"] = np.zeros(table["speeds_kmh"].size)
+    for field, bad in (("lead_s", "abc"), ("lead_s", ["0.01"] * table["speeds_kmh"].size), ("lead_s", {"a": 1}),
+                       ("lead_s", [[0.0]] + [0.0] * (table["speeds_kmh"].size - 1)), ("gains", "abc"), ("speeds_kmh", None)):
+        text = json.loads(path.read_text())
+        text[field] = bad
+        path.write_text(json.dumps(text))
+        with pytest.raises(ConfigError, match=f"{field} = "):
+            load_gains(path)
     table["lead_lowpass_hz"] = -4.0
     save_gains(table, path)
     with pytest.raises(ConfigError, match="lead_lowpass_hz = -4.0"):
