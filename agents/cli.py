@@ -16,25 +16,16 @@ adds train, tune, evaluate, results and margins to the same parser. Training and
 from __future__ import annotations
 
 import argparse
-import gc
 import json
 import sys
 from pathlib import Path
 from typing import Sequence
 
-#: The young-generation threshold of Python's cyclic garbage collector in the ``bogie`` process
-#: (Python's default: 700), set before numpy, numba and the package load: their start-up creates
-#: a few hundred thousand objects, and at 700 the collector spent 0.15-0.2 s of the ~1-s
-#: ``bogie curving`` scanning them (docs/performance.md). Collection still runs, every 50,000
-#: net allocations; no result depends on it.
-GC_YOUNG_THRESHOLD = 50_000
-gc.set_threshold(GC_YOUNG_THRESHOLD, *gc.get_threshold()[1:])
-
-from bogie_env import cli as library_cli  # noqa: E402
-from bogie_env.fileio import write_text_atomic  # noqa: E402
+from bogie_env import cli as library_cli
+from bogie_env.fileio import write_text_atomic
 from bogie_env.cli import (SEED, argument, backend_options, bogie_options, check_backend_args, command, env_config_from_args,
-                           json_option, print_json)  # fmt: skip  # noqa: E402
-from bogie_env.params import ConfigError  # noqa: E402
+                           json_option, print_json)  # fmt: skip
+from bogie_env.params import ConfigError
 
 #: Modules of the ``[agents]`` extra: a missing one is reported with the install command.
 AGENTS_EXTRA = ("stable_baselines3", "torch", "tensorboard", "tqdm", "rich")
@@ -324,14 +315,7 @@ def _check_workers(args: argparse.Namespace) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``bogie`` console script.
-
-    Called as the script (``argv`` None), it freezes the garbage collector's objects on the way
-    out (:func:`gc.freeze`): the process ends next, and the interpreter's final collections then
-    skip the few hundred thousand objects numpy, numba and the package built, which cost
-    0.2-0.3 s of ``bogie curving`` (docs/performance.md). Memory goes back to the system as
-    ever; atexit handlers still run. Called with ``argv`` (tests, other programs), it does not.
-    """
+    """The ``bogie`` command line (the console script is :mod:`bogie_agents.__main__`)."""
     try:
         return library_cli.main(argv)
     except ModuleNotFoundError as error:
@@ -340,9 +324,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"bogie: error: {error.name} is not installed; it comes with the agents extra: "
               f"pip install 'bogie-env[agents]'", file=sys.stderr)  # fmt: skip
         return 2
-    finally:
-        if argv is None:
-            gc.freeze()
 
 
 if __name__ == "__main__":  # pragma: no cover

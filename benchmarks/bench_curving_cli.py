@@ -3,7 +3,7 @@ the floor any numba program pays on the same host.
 
     python benchmarks/bench_curving_cli.py [--runs 7] [--json] [--no-bytecode-cache]
 
-The command runs as the ``bogie`` console script does (``python -m bogie_agents.cli``) with this
+The command runs as the ``bogie`` console script does (``python -m bogie_agents``) with this
 tree on PYTHONPATH (and its ``.shim``, docs/performance.md), once to warm the kernel cache, then
 ``--runs`` times. Warm includes Python's bytecode cache, as an installed package has it (pip
 compiles it at install): both programs run with ``PYTHONDONTWRITEBYTECODE`` removed from their
@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 TREE = Path(__file__).resolve().parent.parent
-COMMAND = ["-m", "bogie_agents.cli", "curving", "--radius", "7000", "--cant", "0.15", "--speed", "350", "--json"]
+COMMAND = ["-m", "bogie_agents", "curving", "--radius", "7000", "--cant", "0.15", "--speed", "350", "--json"]
 FLOOR_MODULE = "from numba import njit\n\n\n@njit(cache=True)\ndef one_more(x):\n    return x + 1.0\n"
 FLOOR_CODE = ["-c", "import numpy\nfrom floor_kernel import one_more\none_more(1.0)\n"]
 

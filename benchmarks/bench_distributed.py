@@ -31,7 +31,7 @@ POINTS = 16065  # the full Section-5 study
 def bogie(*args: str) -> tuple[float, str]:
     """Run one ``bogie`` command in a fresh process; wall time and stdout."""
     start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "bogie_agents.cli", *args], capture_output=True, text=True, cwd=ROOT)
+    done = subprocess.run([sys.executable, "-m", "bogie_agents", *args], capture_output=True, text=True, cwd=ROOT)
     elapsed = time.perf_counter() - start
     if done.returncode:
         raise SystemExit(f"bogie {' '.join(args)} failed:\n{done.stderr[-3000:]}")

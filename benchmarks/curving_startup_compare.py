@@ -17,7 +17,7 @@ import subprocess
 import sys
 import time
 
-COMMAND = ["-m", "bogie_agents.cli", "curving", "--radius", "7000", "--cant", "0.15", "--speed", "350", "--json"]
+COMMAND = ["-m", "bogie_agents", "curving", "--radius", "7000", "--cant", "0.15", "--speed", "350", "--json"]
 
 
 def run(tree: str) -> tuple[float, float, float]:

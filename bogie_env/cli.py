@@ -6,7 +6,7 @@ Each subcommand is a thin client of the library.
     bogie curving --radius M --cant M --speed-kmh KMH [--direction left|right] [--out DIR] [--json]
     bogie curving --route NAME [--speed-kmh KMH] [--out DIR] [--json]
 
-The ``bogie`` console script is :mod:`bogie_agents.cli`, which adds the agents' commands
+The ``bogie`` console script (:mod:`bogie_agents.__main__`) runs :mod:`bogie_agents.cli`, which adds the agents' commands
 (train, tune, evaluate, results) to this parser; ``python -m bogie_env.cli`` has the library's alone.
 """
 

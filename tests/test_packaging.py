@@ -197,39 +197,44 @@ def test_the_bogie_curving_command_imports_nothing_it_does_not_use(tmp_path):
     assert "bogie_env.analysis.curving" in loaded  # the check ran the command, not an import error
 
 
-def test_the_bogie_script_raises_the_gc_threshold_before_numpy_loads():
-    """``bogie_agents.cli`` sets the young-generation GC threshold before numpy (and numba, and
-    the package) are imported: their start-up is where the default threshold cost 0.1-0.2 s
-    of ``bogie curving`` (docs/performance.md)."""
-    script = (
-        "import builtins, gc, sys\n"
-        "seen = {}\n"
-        "original = builtins.__import__\n"
-        "def spy(name, *args, **kwargs):\n"
-        "    if name.split('.')[0] == 'numpy' and 'numpy' not in sys.modules:\n"
-        "        seen.setdefault('numpy', gc.get_threshold()[0])\n"
-        "    return original(name, *args, **kwargs)\n"
-        "builtins.__import__ = spy\n"
-        "import bogie_agents.cli as cli\n"
-        "print(seen['numpy'], cli.GC_YOUNG_THRESHOLD, gc.get_threshold()[0])\n"
-    )
-    at_numpy, constant, now = (int(v) for v in fresh_interpreter_output(script).split())
-    assert at_numpy == constant == now > 700
+#: A fresh interpreter's prelude that records the GC threshold when numpy is first imported.
+GC_SPY = (
+    "import builtins, contextlib, gc, io, sys\n"
+    "seen = {}\n"
+    "original = builtins.__import__\n"
+    "def spy(name, *args, **kwargs):\n"
+    "    if name.split('.')[0] == 'numpy' and 'numpy' not in sys.modules:\n"
+    "        seen.setdefault('numpy', gc.get_threshold()[0])\n"
+    "    return original(name, *args, **kwargs)\n"
+    "builtins.__import__ = spy\n"
+)
+CURVING_ARGS = "['curving', '--radius', '7000', '--cant', '0.15', '--speed', '350', '--json']"
 
 
-def test_the_bogie_script_freezes_the_gc_on_the_way_out_and_only_as_the_script():
-    """As the console script (``main()`` reading sys.argv) it calls gc.freeze() before the process
-    ends; with an explicit argv (tests, other programs) it leaves the collector alone."""
-    script = (
-        "import contextlib, gc, io, sys\n"
+def test_the_bogie_script_tunes_the_gc():
+    """The console script (``bogie_agents.__main__``) sets the young-generation GC threshold
+    before numpy (and numba, and the package) load, where the default cost 0.1-0.2 s of ``bogie
+    curving``, and freezes the collector's objects on the way out (docs/performance.md)."""
+    script = GC_SPY + (
+        "import bogie_agents.__main__ as script\n"
+        f"sys.argv = ['bogie'] + {CURVING_ARGS}\n"
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        "    code = script.main()\n"
+        "print(code, seen['numpy'], script.GC_YOUNG_THRESHOLD, gc.get_threshold()[0], gc.get_freeze_count())\n"
+    )
+    code, at_numpy, constant, threshold, frozen = (int(v) for v in fresh_interpreter_output(script).split())
+    assert code == 0 and at_numpy == constant == threshold > 700 and frozen > 10_000
+
+
+def test_the_library_import_of_the_command_line_leaves_the_gc_alone():
+    """Importing and calling ``bogie_agents.cli`` (tests, other programs) keeps the caller's GC
+    threshold and freezes nothing."""
+    script = GC_SPY + (
+        "gc.set_threshold(123, 5, 5)\n"
         "import bogie_agents.cli as cli\n"
         "with contextlib.redirect_stdout(io.StringIO()):\n"
-        "    code = cli.main(['curving', '--radius', '7000', '--cant', '0.15', '--speed', '350', '--json'])\n"
-        "explicit = gc.get_freeze_count()\n"
-        "sys.argv = ['bogie', 'curving', '--radius', '7000', '--cant', '0.15', '--speed', '350', '--json']\n"
-        "with contextlib.redirect_stdout(io.StringIO()):\n"
-        "    code += cli.main()\n"
-        "print(code, explicit, gc.get_freeze_count())\n"
+        f"    code = cli.main({CURVING_ARGS})\n"
+        "print(code, seen['numpy'], gc.get_threshold()[0], gc.get_freeze_count())\n"
     )
-    code, explicit, as_script = (int(v) for v in fresh_interpreter_output(script).split())
-    assert code == 0 and explicit == 0 and as_script > 10_000
+    code, at_numpy, threshold, frozen = (int(v) for v in fresh_interpreter_output(script).split())
+    assert code == 0 and at_numpy == threshold == 123 and frozen == 0
