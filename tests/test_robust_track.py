@@ -81,3 +81,32 @@ def test_lead_check_raises_on_a_destabilising_lead(setup):
     check_lead(table["gains"], lead, TrackSettings().lead_lowpass_hz, speeds, nominal, late, bank, design, config["dt"])
     with pytest.raises(ValueError, match="destabilises"):
         check_lead(table["gains"], 5 * lead, None, speeds, nominal, late, bank, design, config["dt"])
+
+
+def test_track_weight_per_row():
+    s = TrackSettings(speeds_kmh=(150.0, 240.0), w_track=(0.3, 0.1))
+    assert s.track_weight(150.0) == 0.3 and s.track_weight(240.0) == 0.1
+    assert TrackSettings(speeds_kmh=(150.0, 240.0), w_track=0.2).track_weight(240.0) == 0.2
+    with pytest.raises(ValueError, match="w_track"):
+        TrackSettings(speeds_kmh=(150.0, 240.0), w_track=(0.3, 0.1, 0.1)).track_weight(150.0)
+
+
+def test_retune_uses_each_rows_own_track_weight(setup):
+    """Rows are tuned independently: a per-row weight gives, at each row, the row of a run with
+    that weight for every row (a bug that uses one row's weight everywhere, or another row's,
+    fails this)."""
+    from bogie_agents.robust import load_gains, GAINS_FILE
+    from bogie_agents.robust_track import retune_track
+
+    config = setup[0]
+    base = load_gains(GAINS_FILE.with_name("robust_gains_stage1.json"))
+    speeds = (150.0, 240.0)
+    short = {"speeds_kmh": speeds, "max_evaluations": 40}
+    mixed = retune_track(config, base, TrackSettings(w_track=(2.0, 0.0), **short))["gains"]
+    high = retune_track(config, base, TrackSettings(w_track=2.0, **short))["gains"]
+    low = retune_track(config, base, TrackSettings(w_track=0.0, **short))["gains"]
+    k150, k240 = (list(base["speeds_kmh"]).index(v) for v in speeds)
+    assert np.array_equal(mixed[k150], high[k150]) and np.array_equal(mixed[k240], low[k240])
+    assert not np.array_equal(high[k150], low[k150]) and not np.array_equal(high[k240], low[k240])
+    with pytest.raises(ValueError, match="w_track"):
+        retune_track(config, base, TrackSettings(w_track=(1.0,), **short))
