@@ -11,7 +11,9 @@ column the value (lowest seed), the seeds and the per-seed values, and the floor
 passive + 100 km/h on the same seeds when passive is among the policies. ``--n-sub``: RK4 substeps
 per 10 ms env step (v1: 10); ``--flange-time-limit``: the criterion's flange-contact time limit
 (the protocol's 0.01; 1 leaves EN 14363's ΣY and frame-acceleration limits only), a sensitivity
-check, not the protocol.
+check, not the protocol. ``--trust-policy``: a ``--policy`` may be a path (a run folder, e.g. a
+training checkpoint copied as ``best_model.zip`` beside the run's ``vecnormalize.json`` and
+``config.json``), loaded as ``bogie evaluate --trust-policy`` does.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ def column_values(result: dict) -> dict[str, dict]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--policy", action="append", default=None)
+    parser.add_argument("--trust-policy", action="store_true", help="load a --policy path (an SB3 file is code: only your own runs)")
     parser.add_argument("--seed", type=int, default=10, help="first seed of the block of 10 (default 10: seeds 10-19)")
     parser.add_argument("--columns", default="nominal,conicity:0.05,conicity:0.1")
     parser.add_argument("--n-sub", type=int, default=None, help="RK4 substeps per env step (default: v1's 10; 20 halves the step)")
@@ -45,7 +48,7 @@ def main() -> None:
     out: dict[str, dict] = {}
     for policy in args.policy or ["passive", "robust_damping", "pretrained"]:
         t0 = time.monotonic()
-        result = evaluate_policy_v2(policy, config, settings, ("critical",))
+        result = evaluate_policy_v2(policy, config, settings, ("critical",), trusted=args.trust_policy)
         out[policy] = {lam: {"kmh": col["kmh"], "seeds": col["seeds"], "per_seed_kmh": col["per_seed_kmh"]}
                        for lam, col in column_values(result).items()}  # fmt: skip
         print(f"[{policy}: {time.monotonic() - t0:.0f} s, busy host]", file=sys.stderr, flush=True)
