@@ -113,6 +113,8 @@ class PlantModel:
     filter_start: int = 0  # index of the first filter state
     a_cont: np.ndarray | None = field(default=None, repr=False)  # continuous bogie + lag, for fractional delays
     b_cont: np.ndarray | None = field(default=None, repr=False)
+    #: which of the 20 bogie states the plant's first states are (None: all 20, in order)
+    bogie_states: tuple[int, ...] | None = None
 
     def with_delay_s(self, extra_s) -> "PlantModel":
         """The plant with ``extra_s`` (scalar: every channel; or per channel) seconds more
@@ -176,11 +178,16 @@ class PlantModel:
     def settled_state(self, dx: np.ndarray, dforce: np.ndarray | None = None) -> np.ndarray:
         """The plant state for a deviation ``dx`` (20,) of the bogie and ``dforce`` of the
         channel forces, with empty command registers and the sensor filters settled on it (as
-        the env starts an episode: its first observation is unfiltered)."""
+        the env starts an episode: its first observation is unfiltered). A plant of fewer
+        bogie states (``bogie_states``) takes those entries of ``dx``."""
+        dx = np.asarray(dx, dtype=float)
+        if dx.shape != (N_STATES,):
+            raise ValueError(f"settled_state: dx has shape {dx.shape}; allowed: ({N_STATES},), the bogie's state deviation")
+        bogie = dx if self.bogie_states is None else dx[list(self.bogie_states)]
         s = np.zeros(self.a.shape[0])
-        s[:N_STATES] = dx
+        s[:bogie.size] = bogie
         if dforce is not None:
-            s[N_STATES:N_STATES + self.n_act] = dforce
+            s[bogie.size:bogie.size + self.n_act] = dforce
         if self.filter_rows:
             start = self.filter_start
             s[start:start + len(self.filter_rows)] = (self.c_clean @ s)[list(self.filter_rows)]

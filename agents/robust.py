@@ -201,8 +201,9 @@ class DesignModel:
         ``bogie_agents.margins.PlantModel``, assembled by ``margins.sampled_loop_plant``: a
         command register per channel and the continuous part kept, so that ``margins.LinearLoop``
         and ``loop_margins`` (extra whole-step and fractional delays per channel) apply to the
-        design model. Its bogie state is the 16 lateral states (``LATERAL_STATES``), not 20;
-        ``x_eq`` is the straight-track equilibrium of the linearisation."""
+        design model. Its bogie state is the 16 lateral states (``LATERAL_STATES``, its
+        ``bogie_states``), not 20; ``x_eq`` is the straight-track equilibrium of the
+        linearisation."""
         from .margins import PlantModel, sampled_loop_plant
 
         a_c, b_c = self.continuous(speed_kmh / KMH)
@@ -214,7 +215,7 @@ class DesignModel:
         return PlantModel(a, b, c, self.dt, speed_kmh / KMH, np.asarray(self.lin.equilibrium, float), np.zeros(self.n_act),
                           list(self.active), self.max_force, self.bandwidth, delays, self.config["observation"]["type"],
                           self.include_actuators, self.model, rows, np.asarray(weights, float), c_clean, filter_start,
-                          a_c, b_c)  # fmt: skip
+                          a_c, b_c, bogie_states=tuple(LAT))  # fmt: skip
 
 
 # =============================================================================================

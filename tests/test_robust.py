@@ -37,6 +37,7 @@ from bogie_agents.robust import (
     save_gains,
 )
 from bogie_env.actuators import CHANNEL_NAMES
+from bogie_env.dynamics import state_index
 from bogie_env.envs import task as T
 from bogie_env.envs.config import make_config, merge_config
 from bogie_env.envs.sensors import SENSOR_NAMES
@@ -347,6 +348,24 @@ def test_loop_plant_is_the_design_plant(config):
         for other in (plant.with_extra_delay(1), plant.with_delay_s(config["dt"])):
             got = _response(other.a, other.b, other.c, z)
             assert np.allclose(got, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+
+
+def test_loop_plant_settled_state_takes_the_lateral_states(config):
+    """The design plant has 16 bogie states (``bogie_states``), the margins plant 20: a state
+    deviation placed by ``settled_state`` gives the same clean observation in both (a layout that
+    copies the 20 entries into the first 20 states misplaces the frame's and fails this)."""
+    plain = merge_config(config, {"sensors": {"enabled": False}})
+    design = DesignModel(plain, 0.1)
+    mine, other = design.loop_plant(250.0), M.plant_model(plain, 250.0, model=design.model)
+    dx = np.zeros(20)
+    for name, value in (("y1", 1e-3), ("psi2", 2e-4), ("yb", -5e-4), ("dpsib", 1e-3), ("phi1", 3e-4)):
+        dx[state_index(name)] = value
+    force = np.linspace(-0.2, 0.3, design.n_act)
+    got = mine.c_clean @ mine.settled_state(dx, force)
+    expected = other.c_clean @ other.settled_state(dx, force)
+    assert np.allclose(got, expected, rtol=1e-7, atol=1e-9 * np.abs(expected).max())
+    with pytest.raises(ValueError, match="dx has shape"):
+        mine.settled_state(np.zeros(16))
 
 
 def test_report_margins_agree_with_the_margins_loop(config, controller):
