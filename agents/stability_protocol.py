@@ -143,6 +143,9 @@ class Settings:
     cost_seeds: int = 4
     margin_speeds_kmh: tuple[float, ...] = (300.0, 350.0, 400.0, 450.0, 500.0)
     progress: bool = True
+    #: the scenario quantities every row pins (a column's own options override them); a
+    #: sensitivity study may change one, e.g. ``damper_factor`` 1.0001
+    nominal_options: dict[str, Any] = field(default_factory=lambda: dict(NOMINAL_OPTIONS))
 
     def grid_kmh(self) -> np.ndarray:
         """The coarse grid: geometric from the floor, the ceiling always included."""
@@ -356,7 +359,7 @@ def columns(env_config: dict, settings: Settings) -> dict[str, list[Case]]:
     active = [CHANNEL_NAMES[k] for k in active_channels(env_config["actuators"])]
 
     def cases(name: str, extra: Mapping[str, Any], lam: float = nominal_lam, loop: str = "default") -> list[Case]:
-        return [Case(name, s, {**NOMINAL_OPTIONS, "conicity": lam, **extra}, lam, loop) for s in seeds]
+        return [Case(name, s, {**settings.nominal_options, "conicity": lam, **extra}, lam, loop) for s in seeds]
 
     out: dict[str, list[Case]] = {"nominal": cases("nominal", {})}
     for lam in settings.conicities:
@@ -376,7 +379,7 @@ def columns(env_config: dict, settings: Settings) -> dict[str, list[Case]]:
             rng = np.random.default_rng([settings.seed, 14363, i])
             s = scenarios.draw_scenario(ranges, {}, rng, active)
             lam = s.conicity if s.conicity is not None else nominal_lam
-            draws.append(Case("worst_case", settings.seed + i, {**NOMINAL_OPTIONS, **scenario_options(s), "conicity": lam},
+            draws.append(Case("worst_case", settings.seed + i, {**settings.nominal_options, **scenario_options(s), "conicity": lam},
                               lam, scenario=s.as_dict()))  # fmt: skip
         out["worst_case"] = draws
     if settings.columns is not None:
@@ -714,7 +717,7 @@ def cost_part(ctx: PartContext) -> dict[str, Any]:
         n = s.cost_seeds
         task = ctx.task(n, cfg)
         task.seed_rows(np.arange(n), [s.seed + i for i in range(n)])
-        task.reset_rows(np.arange(n), {**NOMINAL_OPTIONS, "conicity": lam, "start_kmh": s.cost_speed_kmh,
+        task.reset_rows(np.arange(n), {**s.nominal_options, "conicity": lam, "start_kmh": s.cost_speed_kmh,
                                        "end_kmh": s.cost_speed_kmh, "accel": 0.0})  # fmt: skip
         policy = ctx.policy(told_conicity(lam, s.conicities))
         policy.reset(n)

@@ -195,6 +195,18 @@ def test_seeds_give_identical_results():
     assert json.dumps(again, sort_keys=True) == json.dumps(first, sort_keys=True)
 
 
+def test_nominal_options_reach_every_row_and_columns_override_them():
+    """``Settings.nominal_options`` (sensitivity studies) pins every row; a column's own option
+    (the degraded dampers) still wins."""
+    config = make_config({}, variant="v1")
+    settings = sp.Settings(seeds=2, columns=("nominal", "conicity:0.1", "degraded:dampers-50%"))
+    settings.nominal_options["damper_factor"] = 1.0001
+    cols = sp.columns(config, settings)
+    assert [c.options["damper_factor"] for c in cols["nominal"] + cols["conicity:0.1"]] == [1.0001] * 4
+    assert [c.options["damper_factor"] for c in cols["degraded:dampers-50%"]] == [0.5, 0.5]
+    assert sp.Settings().nominal_options == sp.NOMINAL_OPTIONS  # the protocol itself
+
+
 def test_told_conicity_and_registry():
     assert sp.told_conicity(0.12, (0.025, 0.05, 0.1, 0.2, 0.3)) == 0.1
     assert sp.told_conicity(0.16, (0.025, 0.05, 0.1, 0.2, 0.3)) == 0.2
