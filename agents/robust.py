@@ -814,6 +814,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, default=10, help="ramp, route: seeds 0..N-1")
     parser.add_argument("--out", default=str(GAINS_FILE))
     parser.add_argument("--variant", default="v1")
+    parser.add_argument("--w-track", default=None,
+                        help="retune: the track weight, one number or one per stage-2 row, comma-separated (default: the shipped table's)")
     parser.add_argument("--washout-order", type=int, default=1, choices=WASHOUT_ORDERS,
                         help="design: the filter bank's washout order (filter_bank; the shipped table: 1)")
     args = parser.parse_args(argv)
@@ -842,10 +844,21 @@ def main(argv: list[str] | None = None) -> None:
         if args.base is None:
             parser.error("retune needs --base (stage 1's table)")
         track = TrackSettings()
+        if args.w_track is not None:
+            try:
+                weights = tuple(float(v) for v in args.w_track.split(","))
+            except ValueError:
+                parser.error(f"--w-track = {args.w_track!r}: allowed: one number or {len(track.speeds_kmh)} comma-separated numbers")
+            track.w_track = weights[0] if len(weights) == 1 else weights
+            try:
+                track.track_weight(track.speeds_kmh[0])  # checks the count
+            except ValueError as error:
+                parser.error(str(error))
         report_row = _progress_printer(len(track.speeds_kmh))
         base = load_gains(args.base)
         table = retune_track(config, base, track, progress=lambda row: report_row(json.dumps(row)))
-        table["command"] = f"{base.get('command', '?')} --out STAGE1; python -m bogie_agents.robust retune --variant {args.variant} --base STAGE1"
+        table["command"] = (f"{base.get('command', '?')} --out STAGE1; python -m bogie_agents.robust retune --variant {args.variant} --base STAGE1"
+                            + (f" --w-track {args.w_track}" if args.w_track is not None else ""))  # fmt: skip
         save_gains(table, args.out)
         print(f"wrote {args.out}")
         return
