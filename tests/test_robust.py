@@ -25,6 +25,7 @@ from bogie_agents import margins as M
 from bogie_agents.policies import CLASSICAL, load_policy
 from bogie_agents.robust import (
     DESIGN_CONICITIES,
+    GAINS_FILE,
     DesignModel,
     RobustDampingController,
     closed_loop,
@@ -417,3 +418,11 @@ def test_progress_printer_counts_and_estimates_the_time_left(capsys):
     lines = capsys.readouterr().err.splitlines()
     assert lines[0].startswith("[1/3] row a; ") and lines[1].startswith("[2/3] row b; ")
     assert all(line.endswith(" s left") for line in lines)
+
+
+@pytest.mark.parametrize("w_track, message", [("a", "--w-track = 'a'"), ("0.1,0.2", "has 2 values")])
+def test_retune_w_track_names_a_bad_value(w_track, message, capsys, tmp_path):
+    with pytest.raises(SystemExit):
+        main(["retune", "--base", str(GAINS_FILE.with_name("robust_gains_stage1.json")), "--w-track", w_track,
+              "--out", str(tmp_path / "g.json")])  # fmt: skip
+    assert message in capsys.readouterr().err and not (tmp_path / "g.json").exists()
