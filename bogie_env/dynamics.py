@@ -241,17 +241,31 @@ def _sample(yt, k):
 
 
 @njit(cache=True, inline="always")
-def _unbalanced_acceleration(V, kappa, cant):
-    """Eq. (C1), ``V^2 kappa cos(cant) - g sin(cant)``. Without cant (straight track, uncanted
-    curves) it skips the trigonometry: cos(+-0) = 1 and sin(+-0) = +-0 exactly, so the value is
-    the same bit for bit."""
-    if cant == 0.0:
-        return V * V * kappa - GRAVITY * cant
-    return V * V * kappa * np.cos(cant) - GRAVITY * np.sin(cant)
+def _cant_trig(yt):
+    """(cos, sin) of the cant angle under the frame, wheelset 1 and wheelset 2, flattened: the only
+    transcendental calls of the right-hand side, apart so that SIMD lanes can make them one lane
+    at a time (:func:`_rhs_lanes`). Without cant (straight track, uncanted
+    curves) they are (1, cant) without the calls: cos(+-0) = 1 and sin(+-0) = +-0 exactly."""
+    cant_b = _sample(yt, CANT_FRAME)
+    cant1 = _sample(yt, CANT_WHEELSET1)
+    cant2 = _sample(yt, CANT_WHEELSET1 + 1)
+    cos_b, sin_b = (1.0, cant_b) if cant_b == 0.0 else (np.cos(cant_b), np.sin(cant_b))
+    cos1, sin1 = (1.0, cant1) if cant1 == 0.0 else (np.cos(cant1), np.sin(cant1))
+    cos2, sin2 = (1.0, cant2) if cant2 == 0.0 else (np.cos(cant2), np.sin(cant2))
+    return cos_b, sin_b, cos1, sin1, cos2, sin2
 
 
 @njit(cache=True, inline="always")
-def _rhs_row(x, V, Q, yt, p, out):
+def _unbalanced_acceleration(V, kappa, cos_cant, sin_cant):
+    """Eq. (C1), ``V^2 kappa cos(cant) - g sin(cant)``."""
+    return V * V * kappa * cos_cant - GRAVITY * sin_cant
+
+
+@njit(cache=True, inline="always")
+def _wheelset_rhs(i, x, V, Q, yt, trig, p, out):
+    """Eqs. (3)-(6) of wheelset i (0 front, 1 rear) into out[8 i : 8 i + 8], with the cants' cos
+    and sin ``trig`` (:func:`_cant_trig`); returns its reactions on the frame, (lateral force,
+    yaw moment) (Eqs. 44-45). Straight-line code without calls (branches are selects)."""
     mw = p[P_MW]
     L1 = p[P_L1]
     L2 = p[P_L2]
@@ -268,64 +282,65 @@ def _rhs_row(x, V, Q, yt, p, out):
     dyb = x[17]
     psib = x[18]
     dpsib = x[19]
-    # Curving (docs/model.md Section 11): the frame's track curvature and unbalanced
-    # acceleration (Eq. C1); exact zeros on straight track without cant.
     kappa_b = _sample(yt, CURVATURE_FRAME)
-    cant_b = _sample(yt, CANT_FRAME)
-    accel_b = _unbalanced_acceleration(V, kappa_b, cant_b)
-    frame_force = 0.0 * yb
-    frame_moment = 0.0 * yb
-    for i in range(2):
-        o = 8 * i
-        dy = x[o + 1]
-        dpsi = x[o + 5]
-        dphi = x[o + 7]
-        side = 1.0 - 2.0 * i  # +1 front (x = +L1), -1 rear
-        kappa = _sample(yt, CURVATURE_WHEELSET1 + i)
-        cant = _sample(yt, CANT_WHEELSET1 + i)
-        accel = _unbalanced_acceleration(V, kappa, cant)  # Eq. (C1)
-        # The wheelset's track axes seen from the frame's (Eqs. C6-C7, trapezoidal in curvature):
-        # heading, lateral offset of the centreline, and their rates.
-        d = side * L1
-        heading = 0.5 * d * (kappa_b + kappa)
-        offset = d * d * (2.0 * kappa_b + kappa) / 6.0
-        heading_rate = V * (kappa - kappa_b)
-        offset_rate = V * (heading - d * kappa_b)
-        lateral, vertical, yaw, roll = _wheel_rail_forces(
-            x[o] - yt[ALIGNMENT_WHEELSET1 + i], dy, x[o + 4], dpsi, x[o + 6], dphi, inv_v, kappa, p
-        )
-        # Suspension (Eqs. 40-43, corrected; Eq. C8 in curves).
-        spring_y = Kpy2 * (x[o] + offset - yb - side * L1 * psib)
-        damper_y = Cpy2 * (dy + offset_rate - dyb - side * L2 * dpsib)
-        yaw_moment = yaw_k * (x[o + 4] + heading - psib) + yaw_c * (dpsi + heading_rate - dpsib)
-        # Eq. (3) lateral, with the unbalanced acceleration (Eq. C2)
-        out[o] = dy
-        out[o + 1] = (lateral - spring_y - damper_y) / mw - accel
-        # Eq. (4) vertical
-        out[o + 2] = x[o + 3]
-        out[o + 3] = (vertical - 2.0 * p[P_KPZ] * x[o + 2] - 2.0 * p[P_CPZ] * x[o + 3]) / mw
-        # Eq. (5) yaw: gyroscopic coupling, wheel-rail moments, primary suspension, input
-        out[o + 4] = dpsi
-        out[o + 5] = (-gyro * dphi + yaw - yaw_moment + Q[2 + i]) / p[P_IWZ]
-        # Eq. (6) roll, with the secondary-suspension moment of Eq. (43)
-        m_roll = (
-            gyro * dpsi
-            + gyro * V * kappa  # Eq. (C5): the absolute yaw rate includes V kappa
-            + roll
-            - 2.0 * p[P_KSY] * p[P_H_KSY] * yb
-            - 2.0 * p[P_CSY] * p[P_H_CSY] * dyb
-            - roll_k * x[o + 6]
-            - roll_c * dphi
-        )
-        out[o + 6] = dphi
-        out[o + 7] = m_roll / p[P_IWX]
-        # Reactions on the frame (Eqs. 44-45).
-        frame_force += spring_y + damper_y
-        frame_moment += side * (L1 * spring_y + L2 * damper_y) + yaw_moment
-    # Eqs. (1)-(2) with (44)-(45): frame on the secondary suspension to a car body that
-    # follows the track; in curves the frame and the car body's share carry the unbalanced
-    # acceleration (Eqs. C2-C3).
-    carried = 2.0 * p[P_WPA] / GRAVITY - 2.0 * mw - p[P_MB]
+    o = 8 * i
+    dy = x[o + 1]
+    dpsi = x[o + 5]
+    dphi = x[o + 7]
+    side = 1.0 - 2.0 * i  # +1 front (x = +L1), -1 rear
+    kappa = _sample(yt, CURVATURE_WHEELSET1 + i)
+    accel = _unbalanced_acceleration(V, kappa, trig[2 + 2 * i], trig[3 + 2 * i])  # Eq. (C1)
+    # The wheelset's track axes seen from the frame's (Eqs. C6-C7, trapezoidal in curvature):
+    # heading, lateral offset of the centreline, and their rates.
+    d = side * L1
+    heading = 0.5 * d * (kappa_b + kappa)
+    offset = d * d * (2.0 * kappa_b + kappa) / 6.0
+    heading_rate = V * (kappa - kappa_b)
+    offset_rate = V * (heading - d * kappa_b)
+    lateral, vertical, yaw, roll = _wheel_rail_forces(
+        x[o] - yt[ALIGNMENT_WHEELSET1 + i], dy, x[o + 4], dpsi, x[o + 6], dphi, inv_v, kappa, p
+    )
+    # Suspension (Eqs. 40-43, corrected; Eq. C8 in curves).
+    spring_y = Kpy2 * (x[o] + offset - yb - side * L1 * psib)
+    damper_y = Cpy2 * (dy + offset_rate - dyb - side * L2 * dpsib)
+    yaw_moment = yaw_k * (x[o + 4] + heading - psib) + yaw_c * (dpsi + heading_rate - dpsib)
+    # Eq. (3) lateral, with the unbalanced acceleration (Eq. C2)
+    out[o] = dy
+    out[o + 1] = (lateral - spring_y - damper_y) / mw - accel
+    # Eq. (4) vertical
+    out[o + 2] = x[o + 3]
+    out[o + 3] = (vertical - 2.0 * p[P_KPZ] * x[o + 2] - 2.0 * p[P_CPZ] * x[o + 3]) / mw
+    # Eq. (5) yaw: gyroscopic coupling, wheel-rail moments, primary suspension, input
+    out[o + 4] = dpsi
+    out[o + 5] = (-gyro * dphi + yaw - yaw_moment + Q[2 + i]) / p[P_IWZ]
+    # Eq. (6) roll, with the secondary-suspension moment of Eq. (43)
+    m_roll = (
+        gyro * dpsi
+        + gyro * V * kappa  # Eq. (C5): the absolute yaw rate includes V kappa
+        + roll
+        - 2.0 * p[P_KSY] * p[P_H_KSY] * yb
+        - 2.0 * p[P_CSY] * p[P_H_CSY] * dyb
+        - roll_k * x[o + 6]
+        - roll_c * dphi
+    )
+    out[o + 6] = dphi
+    out[o + 7] = m_roll / p[P_IWX]
+    # Reactions on the frame (Eqs. 44-45).
+    return spring_y + damper_y, side * (L1 * spring_y + L2 * damper_y) + yaw_moment
+
+
+@njit(cache=True, inline="always")
+def _frame_rhs(x, V, Q, yt, trig, p, frame_force, frame_moment, out):
+    """Eqs. (1)-(2) with (44)-(45) into out[16:20]: the frame on the secondary suspension to a car
+    body that follows the track, with the wheelsets' reactions ``frame_force``, ``frame_moment``;
+    in curves the frame and the car body's share carry the unbalanced acceleration (Eqs. C1-C3;
+    exact zeros on straight track without cant, docs/model.md Section 11)."""
+    yb = x[16]
+    dyb = x[17]
+    psib = x[18]
+    dpsib = x[19]
+    accel_b = _unbalanced_acceleration(V, _sample(yt, CURVATURE_FRAME), trig[0], trig[1])
+    carried = 2.0 * p[P_WPA] / GRAVITY - 2.0 * p[P_MW] - p[P_MB]
     if carried < 0.0:
         carried = 0.0
     out[16] = dyb
@@ -337,6 +352,42 @@ def _rhs_row(x, V, Q, yt, p, out):
         - 2.0 * p[P_CSX] * p[P_B3] * p[P_B3] * dpsib
         + Q[1]
     ) / p[P_IBZ]
+
+
+@njit(cache=True, inline="always")
+def _rhs_row(x, V, Q, yt, p, out):
+    """The right-hand side of one bogie into out (20,): state x (20,), speed V, inputs Q (4,),
+    track samples yt (N_TRACK,), coefficients p. Generic in the scalar type of x (float or complex)."""
+    trig = _cant_trig(yt)
+    frame_force = 0.0 * x[16]
+    frame_moment = 0.0 * x[16]
+    for i in range(2):
+        force, moment = _wheelset_rhs(i, x, V, Q, yt, trig, p, out)
+        frame_force += force
+        frame_moment += moment
+    _frame_rhs(x, V, Q, yt, trig, p, frame_force, frame_moment, out)
+
+
+@njit(cache=True, inline="always")
+def _rhs_lanes(x, V, Q, yt, trig, p, out, frame):
+    """:func:`_rhs_row` of a lane block (:mod:`bogie_env.lanes`): each argument with a last axis
+    of lanes, the cants' cos and sin given (``trig`` (6, lanes), :func:`_cant_trig`), ``frame``
+    (2, lanes) scratch for the frame reactions. The same functions in the same order per lane;
+    the lane loops are innermost and call straight-line code, so they compile to SIMD
+    instructions across the lanes."""
+    lanes = x.shape[1]
+    for lane in range(lanes):
+        frame[0, lane] = 0.0 * x[16, lane]
+        frame[1, lane] = 0.0 * x[16, lane]
+    for i in range(2):
+        for lane in range(lanes):
+            force, moment = _wheelset_rhs(i, x[:, lane], V[lane], Q[:, lane], yt[:, lane], trig[:, lane], p[:, lane],
+                                          out[:, lane])  # fmt: skip
+            frame[0, lane] += force
+            frame[1, lane] += moment
+    for lane in range(lanes):
+        _frame_rhs(x[:, lane], V[lane], Q[:, lane], yt[:, lane], trig[:, lane], p[:, lane], frame[0, lane], frame[1, lane],
+                   out[:, lane])  # fmt: skip
 
 
 @njit(cache=True, inline="always")

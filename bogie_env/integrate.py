@@ -1,7 +1,7 @@
-"""Time integration: one RK4 interval of one bogie, step-size choice, scipy reference runs.
+"""Time integration: one RK4 interval of a block of bogies, step-size choice, scipy reference runs.
 
-:func:`_advance_row` advances one bogie by one control interval ``dt`` in ``n_sub`` classic
-RK4 substeps. Within the interval:
+:func:`_advance_lanes` advances a block of bogies, one per SIMD lane (:mod:`bogie_env.lanes`),
+by one control interval ``dt`` in ``n_sub`` classic RK4 substeps. Within the interval:
 
 - the speed ramps linearly, ``V(t) = V0 + a t`` (the paper's speed-ramp runs, Section 4);
 - the distance travelled ``s(t) = s0 + V0 t + a t^2 / 2`` places each wheelset on the track
@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from .actuators import N_CHANNELS, channel_output, channel_velocity, generalised_forces
-from .dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _rhs_row, check_speed, rhs_single_kernel
+from .dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _cant_trig, _rhs_lanes, check_speed, rhs_single_kernel
 from .track import N_TRACK_SAMPLES, sample_track
 
 #: fastmath flags of the stepping kernels: none (IEEE arithmetic). With 'contract',
@@ -38,12 +38,14 @@ FASTMATH: set[str] = set()
 STATUS_OK = 0
 STATUS_NONFINITE = 1
 
-# Scratch rows of _advance_row (one (N_SCRATCH, N_STATES) buffer per thread):
-K1, K2, K3, K4, XS, U, Q, YT = range(8)  # RK4 stages, stage state, channel outputs, inputs, track
-N_SCRATCH = 8
+# Scratch rows of _advance_lanes (a (N_SCRATCH, N_STATES, lanes) lane block of the caller):
+# RK4 stages, stage state, channel outputs, inputs, track samples, cos/sin of the cants, stage speed,
+# the frame reactions
+K1, K2, K3, K4, XS, U, Q, YT, TRIG, SPEED, FRAME = range(11)
+N_SCRATCH = 11
 # Rows of a bogie's channel outputs: force at the end of the interval, mean power over it.
 OUT_FORCE, OUT_POWER = 0, 1
-assert N_CHANNELS <= N_STATES and N_INPUTS <= N_STATES and N_TRACK_SAMPLES <= N_STATES
+assert N_CHANNELS <= N_STATES and N_INPUTS <= N_STATES and N_TRACK_SAMPLES <= N_STATES and 6 <= N_STATES
 
 
 @njit(cache=True, inline="always")
@@ -53,65 +55,84 @@ def _add_power(power, u, x, divisor):
 
 
 @njit(cache=True, inline="always")
-def _advance_row(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, track, p, out, scratch):
-    """Advance one bogie by dt in n_sub RK4 substeps. Returns a status code.
+def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, track, p, out, status, scratch):
+    """Advance a lane block of bogies (:mod:`bogie_env.lanes`) by dt in n_sub RK4 substeps.
 
-    The speed is ``v0 + accel t`` and the distance ``s0 + v0 t + accel t^2 / 2`` within the
-    interval; ``lag`` (2, N_CHANNELS) holds the channels' lag states at its start and ``target``
-    (2, N_CHANNELS) their targets and ``weights`` the lag weights at the stage times
-    (:func:`bogie_env.actuators.lag_weights`); ``channels`` is the channel table
-    and ``track`` the track input (:mod:`bogie_env.track`). ``out`` (2, N_CHANNELS) receives
-    the channel outputs at the end of the interval and the mean power over it.
-    ``scratch`` (N_SCRATCH, 20) is allocated once per thread by the caller: allocating inside a
-    parallel loop serialises the threads on the allocator's counters.
+    Lane-major, ``[..., lane]``: the states ``x`` (20, lanes), in place; the start speed ``v0``,
+    ramp rate ``accel`` and distance ``s0`` (lanes,): within the interval the speed is
+    ``v0 + accel t`` and the distance ``s0 + v0 t + accel t^2 / 2``; the coefficients ``p``
+    (N_COEFFICIENTS, lanes); ``scratch`` (N_SCRATCH, 20, lanes). Row-major, ``[lane, ...]``: the
+    channels' lag states at the start ``lag`` and their targets ``target`` (lanes, 2,
+    N_CHANNELS); ``out`` (lanes, 2, N_CHANNELS) receives the channel outputs at the end of the
+    interval and the mean power over it, ``status`` (lanes,) the status codes. ``weights`` are
+    the lag weights at the stage times (:func:`bogie_env.actuators.lag_weights`), ``channels``
+    the channel table, ``track`` the track input (:mod:`bogie_env.track`).
 
-    The four RK4 stages are one loop over a single copy of the stage code (channel outputs,
-    generalised forces, track samples, right-hand side), not four inlined copies: the
-    compiled code is four times smaller, which cut the first compilation of the drivers
-    several-fold and keeps the hot loop in the instruction cache (docs/performance.md). The
-    arithmetic is the classic RK4's, operation for operation. The two middle stages share
-    their time, so the second reuses the first's track samples.
+    The lane-major arrays must be lane blocks of a compile-time width (``stack_array`` in the
+    calling function, into which this is inlined): then the right-hand side, the stage states
+    and the RK4 update compile to SIMD instructions across the lanes. What holds calls runs one
+    lane at a time: the channel outputs (the rate limiter's log and exp), the track samples
+    (segment search, interpolation, the cants' cos and sin) and the power. A row's arithmetic is
+    the same in any lane of a block of any width, operation for operation: the classic RK4's.
+
+    The four RK4 stages are one loop over a single copy of the stage code, not four inlined
+    copies: the compiled code is four times smaller, which cut the first compilation of the
+    drivers several-fold (docs/performance.md). The two middle stages share their time, so the
+    second reuses the first's track samples.
     """
+    lanes = x.shape[1]
     h = dt / n_sub
     xs = scratch[XS]
     u = scratch[U]
     q = scratch[Q]
     yt = scratch[YT]
-    power = out[OUT_POWER]
-    L1 = p[P_L1]
-    for k in range(N_CHANNELS):
-        power[k] = 0.0
+    trig = scratch[TRIG]
+    speed = scratch[SPEED, 0]
+    for lane in range(lanes):
+        for k in range(N_CHANNELS):
+            out[lane, OUT_POWER, k] = 0.0
     for j in range(n_sub):
         t = j * h
         for stage in range(4):
             # the stage's state and time: x, x + h/2 k1, x + h/2 k2, x + h k3 at t, t + h/2, t + h/2, t + h
             if stage == 0:
                 for i in range(N_STATES):
-                    xs[i] = x[i]
+                    for lane in range(lanes):
+                        xs[i, lane] = x[i, lane]
                 ts = t
             else:
                 step = h if stage == 3 else 0.5 * h
                 for i in range(N_STATES):
-                    xs[i] = x[i] + step * scratch[K1 + stage - 1, i]
+                    for lane in range(lanes):
+                        xs[i, lane] = x[i, lane] + step * scratch[K1 + stage - 1, i, lane]
                 ts = t + h if stage == 3 else t + 0.5 * h
             weight = weights[3 * j + (stage + 1) // 2]
-            for k in range(N_CHANNELS):
-                u[k] = channel_output(xs, k, weight, lag, target, channels)
-            generalised_forces(u, q)
-            if stage != 2:  # stage 2 is at stage 1's time: same track samples
-                sample_track(track, s0 + v0 * ts + 0.5 * accel * ts * ts, L1, yt)
-            _rhs_row(xs, v0 + accel * ts, q, yt, p, scratch[K1 + stage])
-            _add_power(power, u, xs, 6.0 if stage == 0 or stage == 3 else 3.0)
+            for lane in range(lanes):
+                for k in range(N_CHANNELS):
+                    u[k, lane] = channel_output(xs[:, lane], k, weight, lag[lane], target[lane], channels)
+                generalised_forces(u[:, lane], q[:, lane])
+                if stage != 2:  # stage 2 is at stage 1's time: same track samples
+                    sample_track(track, s0[lane] + v0[lane] * ts + 0.5 * accel[lane] * ts * ts, p[P_L1, lane], yt[:, lane])
+                    cos_sin = _cant_trig(yt[:, lane])
+                    for k in range(6):
+                        trig[k, lane] = cos_sin[k]
+                speed[lane] = v0[lane] + accel[lane] * ts
+            _rhs_lanes(xs, speed, q, yt, trig, p, scratch[K1 + stage], scratch[FRAME])
+            for lane in range(lanes):
+                _add_power(out[lane, OUT_POWER], u[:, lane], xs[:, lane], 6.0 if stage == 0 or stage == 3 else 3.0)
         for i in range(N_STATES):
-            x[i] += h / 6.0 * (scratch[K1, i] + 2.0 * scratch[K2, i] + 2.0 * scratch[K3, i] + scratch[K4, i])
-    for k in range(N_CHANNELS):
-        power[k] /= n_sub
-    for k in range(N_CHANNELS):
-        out[OUT_FORCE, k] = channel_output(x, k, weights[3 * n_sub], lag, target, channels)
-    for i in range(N_STATES):
-        if not math.isfinite(x[i]):
-            return STATUS_NONFINITE
-    return STATUS_OK
+            for lane in range(lanes):
+                x[i, lane] += h / 6.0 * (scratch[K1, i, lane] + 2.0 * scratch[K2, i, lane] + 2.0 * scratch[K3, i, lane]
+                                         + scratch[K4, i, lane])  # fmt: skip
+    for lane in range(lanes):
+        for k in range(N_CHANNELS):
+            out[lane, OUT_POWER, k] /= n_sub
+        for k in range(N_CHANNELS):
+            out[lane, OUT_FORCE, k] = channel_output(x[:, lane], k, weights[3 * n_sub], lag[lane], target[lane], channels)
+        status[lane] = STATUS_OK
+        for i in range(N_STATES):
+            if not math.isfinite(x[i, lane]):
+                status[lane] = STATUS_NONFINITE
 
 
 # ---------------------------------------------------------------------------------

@@ -10,7 +10,8 @@ ramps) and the environments' task step (:mod:`bogie_env.envs.task`).
 
 Per interval and row: the channel commands pass through their delays
 (:func:`bogie_env.actuators.delayed_targets`); the speed ramps at the row's rate and stops at
-its end speed; :func:`bogie_env.integrate._advance_row` integrates the interval; the lag
+its end speed; :func:`bogie_env.integrate._advance_lanes` integrates the interval (blocks of
+:data:`bogie_env.lanes.LANES` rows in SIMD lanes); the lag
 states, speed, distance and track samples move to the end of the interval.
 
 Thread use (:class:`LoopChooser`): below :data:`PARALLEL_MIN_ROWS` rows a batch runs on the
@@ -32,8 +33,9 @@ import numpy as np
 from numba import njit, prange
 
 from .actuators import CH_DECAY_RATE, DAMPING, DELAY_SLOTS, FORCE, N_CHANNELS, advance_lag, channel_table, delayed_targets, lag_weights
-from .dynamics import N_STATES, P_L1, BogieModel, check_speed
-from .integrate import FASTMATH, N_SCRATCH, STATUS_OK, _advance_row, stable_substep
+from .dynamics import N_COEFFICIENTS, N_STATES, P_L1, BogieModel, check_speed
+from .integrate import FASTMATH, N_SCRATCH, STATUS_OK, _advance_lanes, stable_substep
+from .lanes import LANES, stack_array
 from .track import ALIGNMENT_SAMPLES, N_TRACK_SAMPLES, TrackInput, TrackProfile, prefetch_track, sample_track
 
 # ---- columns of a row's motion -----------------------------------------------------------------
@@ -126,8 +128,10 @@ class LoopChooser:
 
 @njit(cache=True, inline="always")
 def chunk_bounds(n_rows, n_chunks, c):
-    """Rows [start, stop) of chunk c when n_rows are split into n_chunks."""
-    return (c * n_rows) // n_chunks, ((c + 1) * n_rows) // n_chunks
+    """Rows [start, stop) of chunk c when n_rows are split into n_chunks at multiples of LANES,
+    so that the chunks fill lane blocks (some chunks are empty when there are fewer blocks)."""
+    n_blocks = (n_rows + LANES - 1) // LANES
+    return min(LANES * ((c * n_blocks) // n_chunks), n_rows), min(LANES * (((c + 1) * n_blocks) // n_chunks), n_rows)
 
 
 @njit(cache=True, inline="always")
@@ -150,40 +154,69 @@ def interval_accel(motion, dt):
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def advance_rows(start, stop, rows, channels, track, dt, n_sub):
     """Advance rows [start, stop) by one interval dt (see the module docstring)."""
-    scratch = np.empty((N_SCRATCH, N_STATES))
-    target = np.empty((2, N_CHANNELS))
     weights = np.empty((3 * n_sub + 1, N_CHANNELS))
     lag_weights(channels, dt, n_sub, weights)
-    _advance_run(start, stop, rows, channels, track, dt, n_sub, scratch, target, weights)
+    _advance_run(start, stop, rows, channels, track, dt, n_sub, weights)
 
 
-# numba's private option _nrt=False: the row loop is compiled without reference counting. numba
+# numba's private option _nrt=False: the row loops are compiled without reference counting. numba
 # counts references to arrays atomically whenever a view or tuple of arrays is bound, also inside
 # inlined functions, and per RK4 stage those counts were about a sixth of the interval's time
-# (perf, docs/performance.md). The loop allocates nothing; advance_rows, which allocates its
-# scratch, holds the references. Arithmetic is untouched.
+# (perf, docs/performance.md). They allocate nothing (lane blocks live on the stack); advance_rows,
+# which allocates the lag weights, holds the references. Arithmetic is untouched.
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
-def _advance_run(start, stop, rows, channels, track, dt, n_sub, scratch, target, weights):
-    """The rows' loop of :func:`advance_rows`, with its scratch arrays; while a row is advanced the
-    alignment under the next row is fetched into the cache."""
+def _advance_run(start, stop, rows, channels, track, dt, n_sub, weights):
+    """The rows' loop of :func:`advance_rows`: blocks of LANES rows in SIMD lanes, the last
+    rows (fewer than LANES) one at a time."""
+    n0 = start
+    while n0 + LANES <= stop:
+        _advance_block(LANES, n0, stop, rows, channels, track, dt, n_sub, weights)
+        n0 += LANES
+    for n in range(n0, stop):
+        _advance_block(1, n, stop, rows, channels, track, dt, n_sub, weights)
+
+
+# One compilation per block width: the callers pass the width as a constant, which numba types as
+# a literal (the lane blocks' shapes must be compile-time constants).
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
+def _advance_block(lanes, n0, stop, rows, channels, track, dt, n_sub, weights):
+    """Rows [n0, n0 + lanes) as one lane block: gathered into lanes, advanced by
+    :func:`bogie_env.integrate._advance_lanes`, scattered back. While they are advanced, the
+    alignment under the next block's rows (up to ``stop``) is fetched into the cache."""
     x, motion, coefficients, lag, delay, command, output, track_sample, status = rows
-    for n in range(start, stop):
-        if n + 1 < stop:
-            prefetch_track(track, motion[n + 1, M_DISTANCE], coefficients[n + 1, P_L1])
+    end = n0 + lanes
+    xb = stack_array((N_STATES, lanes))
+    pb = stack_array((N_COEFFICIENTS, lanes))
+    start_motion = stack_array((3, lanes))
+    target = stack_array((lanes, 2, N_CHANNELS))
+    scratch = stack_array((N_SCRATCH, N_STATES, lanes))
+    v0, a, s0 = start_motion[0], start_motion[1], start_motion[2]
+    for n in range(end, min(end + lanes, stop)):
+        prefetch_track(track, motion[n, M_DISTANCE], coefficients[n, P_L1])
+    for lane in range(lanes):
+        n = n0 + lane
         m = motion[n]
-        steps = int(m[M_STEPS])
-        delayed_targets(delay[n], steps, command[n], channels, target)
-        v0 = m[M_SPEED]
-        a = interval_accel(m, dt)
-        s0 = m[M_DISTANCE]
-        p = coefficients[n]
-        status[n] = _advance_row(x[n], v0, a, s0, dt, n_sub, lag[n], target, weights, channels, track, p, output[n], scratch)
-        m[M_START_SPEED] = v0
-        m[M_SPEED] = v0 + a * dt
-        m[M_DISTANCE] = s0 + v0 * dt + 0.5 * a * dt * dt
-        m[M_STEPS] = steps + 1
-        advance_lag(lag[n], target, weights[3 * n_sub], channels)
-        sample_track(track, m[M_DISTANCE], p[P_L1], track_sample[n])
+        delayed_targets(delay[n], int(m[M_STEPS]), command[n], channels, target[lane])
+        v0[lane] = m[M_SPEED]
+        a[lane] = interval_accel(m, dt)
+        s0[lane] = m[M_DISTANCE]
+        for i in range(N_STATES):
+            xb[i, lane] = x[n, i]
+        for i in range(N_COEFFICIENTS):
+            pb[i, lane] = coefficients[n, i]
+    _advance_lanes(xb, v0, a, s0, dt, n_sub, lag[n0:end], target, weights, channels, track, pb, output[n0:end],
+                   status[n0:end], scratch)  # fmt: skip
+    for lane in range(lanes):
+        n = n0 + lane
+        for i in range(N_STATES):
+            x[n, i] = xb[i, lane]
+        m = motion[n]
+        m[M_START_SPEED] = v0[lane]
+        m[M_SPEED] = v0[lane] + a[lane] * dt
+        m[M_DISTANCE] = s0[lane] + v0[lane] * dt + 0.5 * a[lane] * dt * dt
+        m[M_STEPS] = int(m[M_STEPS]) + 1
+        advance_lag(lag[n], target[lane], weights[3 * n_sub], channels)
+        sample_track(track, m[M_DISTANCE], coefficients[n, P_L1], track_sample[n])
 
 
 @njit(cache=True, fastmath=FASTMATH)

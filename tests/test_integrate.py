@@ -174,3 +174,47 @@ def test_one_interval_equals_a_python_rk4_with_track_and_actuators(paper_model):
     assert sim.distance[0] == pytest.approx(s0 + v0 * dt + 0.5 * accel * dt * dt, rel=1e-14)
     assert np.allclose(sim.track_sample[0], track.under_wheelsets(sim.distance[0], L1), rtol=0, atol=1e-15)
     assert np.allclose(sim.channel_output[0], target * (1 - math.exp(-dt / tau)), rtol=1e-12)
+
+
+def test_rows_in_simd_lanes_get_the_bits_they_get_alone(paper_model):
+    """Lane blocks (bogie_env.lanes): each row's interval gives the same bits whichever lane of a
+    block of LANES rows it takes, or in a block of one (the rows that do not fill a block). 13
+    rows, each with its own coefficients, speed, ramp and place on the s-curve route (tangents,
+    transitions, curves, cant, both directions), rate-limited lagged channels with delays, and a
+    non-finite row among them; the same rows in reverse order (other lanes, others alone) and a
+    row by itself."""
+    from bogie_env.actuators import CH_DELAY_STEPS, CH_RATE_LIMIT
+    from bogie_env.lanes import LANES
+    from bogie_env.route import load_route
+    from bogie_env.track import CANT_WHEELSET1, TrackInput, alignment_profile
+
+    n = 13
+    assert n > LANES and n % LANES
+    route = load_route("s-curve")
+    track = TrackInput(alignment_profile(2e-3, seed=3), route)
+    channels = channel_table()
+    channels[:, CH_DECAY_RATE] = 2 * math.pi * 10.0
+    channels[:, CH_RATE_LIMIT] = np.resize([5e4, np.inf], N_CHANNELS)
+    channels[:, CH_DELAY_STEPS] = np.resize([0, 1, 2], N_CHANNELS)
+    rng = np.random.default_rng(5)
+    x0 = paper_model.equilibrium(80.0) + rng.normal(scale=1e-3, size=(n, 20))
+    x0[6, 3] = np.nan
+    speed, accel = rng.uniform(70.0, 90.0, n), rng.uniform(-2.0, 2.0, n)
+    distance = np.linspace(150.0, 2450.0, n)
+    coefficients = paper_model.coefficients * (1.0 + 0.05 * rng.uniform(-1.0, 1.0, (n, paper_model.coefficients.size)))
+    forces = rng.normal(scale=1e4, size=(12, n, N_CHANNELS))
+
+    def run(order):
+        sim = BatchSimulator(paper_model, len(order), 0.01, (60.0, 100.0), track=track, channels=channels, n_sub=2)
+        sim.set_rows(slice(None), x0[order], speed[order], accel[order], distance[order], coefficients=coefficients[order])
+        for f in forces:
+            sim.step(f[order])
+        return sim
+
+    rows = np.arange(n)
+    batch, reverse, alone = run(rows), run(rows[::-1]), run(rows[3:4])
+    for name in ("x", "motion", "lag", "output", "track_sample", "status"):
+        assert getattr(batch, name).tobytes() == getattr(reverse, name)[::-1].tobytes(), name
+        assert getattr(batch, name)[3:4].tobytes() == getattr(alone, name).tobytes(), name
+    assert np.count_nonzero(batch.track_sample[:, CANT_WHEELSET1]) >= n - 4  # most rows on canted track
+    assert list(batch.status) == [STATUS_NONFINITE if i == 6 else STATUS_OK for i in range(n)]
