@@ -19,9 +19,10 @@ demo: $(STAMP)
 	$(BIN)/bogie critical-speed
 	$(BIN)/bogie evaluate --policy passive --policy pretrained --parts critical
 
-## quick test suite (slow tests skipped)
+## quick test suite (slow tests skipped), in two processes (pytest-xdist; the slow tests, which
+## start Ray clusters, run in one)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2
 
 ## only the tests marked slow
 test-slow: $(STAMP)
