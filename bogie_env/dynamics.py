@@ -368,6 +368,15 @@ def _rhs_row(x, V, Q, yt, p, out):
     _frame_rhs(x, V, Q, yt, trig, p, frame_force, frame_moment, out)
 
 
+@njit(cache=True)
+def rhs_row_call(x, V, Q, yt, p, out):
+    """:func:`_rhs_row` as a compiled function of its own, for callers outside the stepping
+    interval (the observation's frame acceleration): each kernel that calls it links it instead
+    of re-running numba's inlining of the whole right-hand side, which is most of their
+    compilation time. Same arithmetic, same bits."""
+    _rhs_row(x, V, Q, yt, p, out)
+
+
 @njit(cache=True, inline="always")
 def _rhs_lanes(x, V, Q, yt, trig, p, out, frame):
     """:func:`_rhs_row` of a lane block (:mod:`bogie_env.lanes`): each argument with a last axis

@@ -44,7 +44,7 @@ from ..actuators import (
     healthy_command,
     saturation,
 )
-from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, _rhs_row, state_index
+from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, rhs_row_call, state_index
 from ..integrate import FASTMATH, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, stable_substep
 from ..params import BogieParams, ConfigError
 from ..simulator import (
@@ -269,7 +269,7 @@ def _observe(obs, x, v1, p, track_sample, u_end, channels, cfg, state_scales, sc
         # frame lateral acceleration needs the right-hand side at the end state
         q = scratch[1, :N_INPUTS]
         generalised_forces(u_end, q)
-        _rhs_row(x, v1, q, track_sample, p, scratch[0])
+        rhs_row_call(x, v1, q, track_sample, p, scratch[0])
         L1 = p[P_L1]
         delta = p[P_DELTA]
         psib = x[PSIB]
