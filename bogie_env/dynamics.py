@@ -368,7 +368,10 @@ def _rhs_row(x, V, Q, yt, p, out):
     _frame_rhs(x, V, Q, yt, trig, p, frame_force, frame_moment, out)
 
 
-@njit(cache=True)
+# error_model="numpy" as the stepping kernels (a division by zero gives inf, not an exception);
+# _nrt=False (numba's private option): no reference counts on its array arguments, as in the
+# row loops that call it (atomic counts across threads cost time, docs/performance.md)
+@njit(cache=True, error_model="numpy", _nrt=False)
 def rhs_row_call(x, V, Q, yt, p, out):
     """:func:`_rhs_row` as a compiled function of its own, for callers outside the stepping
     interval (the observation's frame acceleration): each kernel that calls it links it instead
