@@ -595,6 +595,13 @@ def column_result(cases: list[Case], found: dict[str, Any], idx: np.ndarray, set
     return out
 
 
+def columns_by_conicity(result: Mapping[str, Any], nominal_conicity: float = 0.025) -> dict[str, Any]:
+    """``{conicity: column}`` of a protocol-v2 result: the ``by_conicity`` columns and the nominal
+    one under its conicity (v1's wheels: 0.025), for scripts that compare conicities."""
+    nominal = {f"{nominal_conicity:g}": result["nominal"]} if "nominal" in result else {}
+    return nominal | dict(result.get("by_conicity", {}))
+
+
 # ---- parts ---------------------------------------------------------------------------------------
 @dataclass
 class PartContext:

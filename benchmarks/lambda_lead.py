@@ -29,7 +29,7 @@ import numpy as np
 
 from bogie_env.envs.config import make_config, merge_config
 from bogie_agents.robust import GAINS_FILE, DesignModel, RobustDampingController, closed_loop, filter_bank, load_gains
-from bogie_agents.stability_protocol import Settings, evaluate_policy_v2
+from bogie_agents.stability_protocol import Settings, columns_by_conicity, evaluate_policy_v2
 
 
 def largest_factor(controller: RobustDampingController, config: dict, conicity: float, speeds) -> float:
@@ -74,8 +74,7 @@ def main() -> None:
     settings = Settings(seeds=args.seeds, columns=tuple(args.columns.split(",")), progress=False)
 
     def columns_of(source, label: str) -> dict:
-        out = evaluate_policy_v2(source, config, settings, parts=("critical",), label=label)
-        return ({"0.025": out["nominal"]} if "nominal" in out else {}) | out.get("by_conicity", {})
+        return columns_by_conicity(evaluate_policy_v2(source, config, settings, parts=("critical",), label=label))
 
     columns = columns_of(lambda cfg: RobustDampingController(cfg, gains=table), "robust_damping (edited copy)")
     passive = columns_of("passive", "passive") if args.seeds > 10 else {}

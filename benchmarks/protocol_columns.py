@@ -24,12 +24,7 @@ import sys
 import time
 
 from bogie_env.envs.config import make_config
-from bogie_agents.stability_protocol import Settings, evaluate_policy_v2
-
-
-def column_values(result: dict) -> dict[str, dict]:
-    """{conicity: column} from a protocol-v2 result (the nominal column is conicity 0.025)."""
-    return ({"0.025": result["nominal"]} if "nominal" in result else {}) | result.get("by_conicity", {})
+from bogie_agents.stability_protocol import Settings, columns_by_conicity, evaluate_policy_v2
 
 
 def main() -> None:
@@ -50,7 +45,7 @@ def main() -> None:
         t0 = time.monotonic()
         result = evaluate_policy_v2(policy, config, settings, ("critical",), trusted=args.trust_policy)
         out[policy] = {lam: {"kmh": col["kmh"], "seeds": col["seeds"], "per_seed_kmh": col["per_seed_kmh"]}
-                       for lam, col in column_values(result).items()}  # fmt: skip
+                       for lam, col in columns_by_conicity(result).items()}  # fmt: skip
         print(f"[{policy}: {time.monotonic() - t0:.0f} s, busy host]", file=sys.stderr, flush=True)
     if "passive" in out:
         out["floor_passive_plus_100"] = {lam: round(col["kmh"] + 100.0, 1) for lam, col in out["passive"].items()}

@@ -29,13 +29,9 @@ import sys
 import time
 
 from bogie_env.envs.config import make_config
-from bogie_agents.stability_protocol import Settings, evaluate_policy_v2
+from bogie_agents.stability_protocol import Settings, columns_by_conicity, evaluate_policy_v2
 
 COLUMNS = ("nominal", "conicity:0.1")
-
-
-def column_values(result: dict) -> dict[str, dict]:
-    return {"0.025": result["nominal"], "0.1": result["by_conicity"]["0.1"]}
 
 
 def main() -> None:
@@ -62,7 +58,7 @@ def main() -> None:
                     settings.perturbation_m *= 1.0 + k * args.relative
                 else:
                     settings.nominal_options["damper_factor"] = 1.0 + k * args.relative
-                runs.append(column_values(evaluate_policy_v2(policy, config, settings, ("critical",))))
+                runs.append(columns_by_conicity(evaluate_policy_v2(policy, config, settings, ("critical",))))
                 done += 1
                 elapsed = time.monotonic() - t0
                 print(f"[{done}/{total}: {policy}, {n_sub} substeps, replica {k}; {elapsed:.0f} s, "

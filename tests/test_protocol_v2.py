@@ -284,3 +284,10 @@ def test_default_parts_give_margins_where_python_control_is_installed(monkeypatc
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "control" else real(name, *a))
     assert cli._default_v2_parts() == "critical,cost"
     assert "python-control is not installed" in capsys.readouterr().err
+
+
+def test_columns_by_conicity_puts_the_nominal_column_under_its_conicity():
+    result = {"nominal": {"kmh": 1.0}, "by_conicity": {"0.1": {"kmh": 2.0}}, "degraded": {}}
+    assert sp.columns_by_conicity(result) == {"0.025": {"kmh": 1.0}, "0.1": {"kmh": 2.0}}
+    assert sp.columns_by_conicity({"by_conicity": {"0.1": {"kmh": 2.0}}}) == {"0.1": {"kmh": 2.0}}
+    assert list(sp.columns_by_conicity(result, 0.05)) == ["0.05", "0.1"]
