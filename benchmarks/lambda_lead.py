@@ -10,8 +10,9 @@ the protocol-v2 column and the smallest command factor the design model tolerate
   controller, e.g. ``'{"actuators": {"frame_lateral": {"rate_limit": 400000.0}}}'`` (a test of
   what limits the controller, not a v1 setting).
 
-- ``--seeds N`` (default 10, the protocol's): seeds 0..N-1; with more than 10, also each block of
-  ten seeds' lowest value against its floor (passive + 100 km/h on the same block, run here).
+- ``--seeds N`` (default 10, the protocol's): seeds S..S+N-1 (``--seed S``, default 0); with more
+  than 10, also each block of ten seeds' lowest value against its floor (passive + 100 km/h on the
+  same block, run here).
 
 Prints the column (worst seed, per seed, median) and, per conicity 0.025-0.1, the largest command
 factor (0.1 steps up to 3) for which the design-model closed loop stays stable, worst over
@@ -59,6 +60,7 @@ def main() -> None:
     ap.add_argument("--env-override", default=None)
     ap.add_argument("--columns", default="conicity:0.1")
     ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=0, help="the first seed (default 0; 100-139 are the test blocks)")
     args = ap.parse_args()
     table = load_gains(args.gains)
     if args.lead_s is not None:
@@ -71,7 +73,7 @@ def main() -> None:
     t0 = time.monotonic()
     if args.seeds < 1:
         ap.error(f"--seeds = {args.seeds} must be >= 1")
-    settings = Settings(seeds=args.seeds, columns=tuple(args.columns.split(",")), progress=False)
+    settings = Settings(seeds=args.seeds, seed=args.seed, columns=tuple(args.columns.split(",")), progress=False)
 
     def columns_of(source, label: str) -> dict:
         return columns_by_conicity(evaluate_policy_v2(source, config, settings, parts=("critical",), label=label))
@@ -86,7 +88,7 @@ def main() -> None:
         if lam in passive:
             blocks = [(b, min(per_seed[b:b + 10]) - min(passive[lam]["per_seed_kmh"][b:b + 10]) - 100.0) for b in range(0, args.seeds, 10)]
             print(f"{label}: λ {lam}: lowest seed - floor per block of ten seeds: "
-                  + ", ".join(f"{b}-{b + 9}: {m:+.1f}" for b, m in blocks) + f"; met on {sum(m >= 0 for _, m in blocks)} of {len(blocks)}")
+                  + ", ".join(f"{args.seed + b}-{args.seed + b + 9}: {m:+.1f}" for b, m in blocks) + f"; met on {sum(m >= 0 for _, m in blocks)} of {len(blocks)}")
     design = make_config({"randomize": {}}, variant="v1")
     controller = RobustDampingController(design, gains=table)
     factors = {c: largest_factor(controller, design, c, np.arange(225.0, 286.0, 15.0)) for c in (0.025, 0.05, 0.1)}
