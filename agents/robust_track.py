@@ -29,9 +29,12 @@ rows of ``lead_speeds_kmh``, zero elsewhere (interpolated linearly in speed, so 
 from the row below and out by the row above). At conicity 0.1, 230-250 km/h, the 12 mm start
 or the alert track drive the bogie into a 5 Hz limit cycle with every channel saturated; the
 actuators' rate limits (frame lateral 200 kN/s: a 10 kN swing at 5 Hz needs 314 kN/s) turn
-the saturated command into a triangle that lags it by about a quarter of its ramp time. One
-10 ms step of lead moves the reversals earlier. It is zero from 300 km/h, so the nominal
-conicity's margins (300-450 km/h) and stage 1's high-speed rows are unchanged.
+the saturated command into a triangle that lags it by about a quarter of its ramp time. The
+lead (15 ms on the 4 Hz low-passed command change, rows 240-270 km/h) moves the reversals
+earlier; it was chosen on robust_damping's conicity-0.1 column over seeds 0-79 among leads that
+keep stage 1's gain factor 2 (:func:`check_lead`; docs/controllers.md, "Stage 2").
+It is zero from 300 km/h, so the nominal conicity's margins (300-450 km/h) and stage 1's
+high-speed rows are unchanged.
 
     python -m bogie_agents.robust retune --base agents/robust_gains_stage1.json --out agents/robust_gains.json
 """
@@ -69,7 +72,7 @@ class TrackSettings:
     w_zeta: float = 1.0
     slack: float = 0.02  # how far stage 1's objective (minus its worst damping ratio) may rise
     max_evaluations: int = 3000
-    lead_s: float = 0.01
+    lead_s: float = 0.015
     lead_lowpass_hz: float = 4.0
     lead_speeds_kmh: tuple[float, ...] = (240.0, 270.0)
 
