@@ -68,7 +68,7 @@ import math
 import sys
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy import signal
@@ -593,6 +593,14 @@ def column_result(cases: list[Case], found: dict[str, Any], idx: np.ndarray, set
     if cases[idx[worst]].scenario is not None:
         out["worst_scenario"] = cases[idx[worst]].scenario
     return out
+
+
+def block_values(per_seed_kmh: Sequence[float], block: int = 10) -> list[float]:
+    """Each block of ``block`` consecutive seeds' column value, as the protocol reports a column:
+    its lowest seed (for scripts that split a long run of seeds into protocol-sized blocks)."""
+    if block < 1 or len(per_seed_kmh) % block:
+        raise ConfigError(f"block_values: {len(per_seed_kmh)} seeds do not split into blocks of {block}")
+    return [min(per_seed_kmh[b:b + block]) for b in range(0, len(per_seed_kmh), block)]
 
 
 def columns_by_conicity(result: Mapping[str, Any], nominal_conicity: float = 0.025) -> dict[str, Any]:

@@ -30,7 +30,7 @@ import numpy as np
 
 from bogie_env.envs.config import make_config, merge_config
 from bogie_agents.robust import GAINS_FILE, DesignModel, RobustDampingController, closed_loop, filter_bank, load_gains
-from bogie_agents.stability_protocol import Settings, columns_by_conicity, evaluate_policy_v2
+from bogie_agents.stability_protocol import Settings, block_values, columns_by_conicity, evaluate_policy_v2
 
 
 def largest_factor(controller: RobustDampingController, config: dict, conicity: float, speeds) -> float:
@@ -73,6 +73,8 @@ def main() -> None:
     t0 = time.monotonic()
     if args.seeds < 1:
         ap.error(f"--seeds = {args.seeds} must be >= 1")
+    if args.seeds > 10 and args.seeds % 10:
+        ap.error(f"--seeds = {args.seeds}: allowed: 1-10, or a multiple of 10 (blocks of ten seeds)")
     settings = Settings(seeds=args.seeds, seed=args.seed, columns=tuple(args.columns.split(",")), progress=False)
 
     def columns_of(source, label: str) -> dict:
@@ -86,7 +88,8 @@ def main() -> None:
         print(f"{label}: λ {lam}: {col['kmh']} km/h, per seed {per_seed}, median {float(np.median(per_seed)):.1f}, "
               f"worst seed fails by {col['worst_seed_fails_by']}")  # fmt: skip
         if lam in passive:
-            blocks = [(b, min(per_seed[b:b + 10]) - min(passive[lam]["per_seed_kmh"][b:b + 10]) - 100.0) for b in range(0, args.seeds, 10)]
+            lows, floors = block_values(per_seed), block_values(passive[lam]["per_seed_kmh"])
+            blocks = [(10 * k, low - floor - 100.0) for k, (low, floor) in enumerate(zip(lows, floors))]
             print(f"{label}: λ {lam}: lowest seed - floor per block of ten seeds: "
                   + ", ".join(f"{args.seed + b}-{args.seed + b + 9}: {m:+.1f}" for b, m in blocks) + f"; met on {sum(m >= 0 for _, m in blocks)} of {len(blocks)}")
     design = make_config({"randomize": {}}, variant="v1")

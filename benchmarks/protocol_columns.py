@@ -26,12 +26,7 @@ import sys
 import time
 
 from bogie_env.envs.config import make_config
-from bogie_agents.stability_protocol import Settings, columns_by_conicity, evaluate_policy_v2
-
-
-def block_lows(per_seed: list[float]) -> list[float]:
-    """Each block of ten seeds' value as the protocol reports it: its lowest seed."""
-    return [min(per_seed[b:b + 10]) for b in range(0, len(per_seed), 10)]
+from bogie_agents.stability_protocol import Settings, block_values, columns_by_conicity, evaluate_policy_v2
 
 
 def main() -> None:
@@ -55,7 +50,7 @@ def main() -> None:
         t0 = time.monotonic()
         result = evaluate_policy_v2(policy, config, settings, ("critical",), trusted=args.trust_policy)
         out[policy] = {lam: {"kmh": col["kmh"], "seeds": col["seeds"], "per_seed_kmh": col["per_seed_kmh"],
-                             "per_block_kmh": block_lows(col["per_seed_kmh"])}
+                             "per_block_kmh": block_values(col["per_seed_kmh"])}
                        for lam, col in columns_by_conicity(result).items()}  # fmt: skip
         print(f"[{policy}: {time.monotonic() - t0:.0f} s, busy host]", file=sys.stderr, flush=True)
     if "passive" in out:

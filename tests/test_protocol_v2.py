@@ -17,6 +17,7 @@ import pytest
 from bogie_agents import stability_protocol as sp
 from bogie_agents.controllers import SkyhookController
 from bogie_env.envs.config import make_config
+from bogie_env.params import ConfigError
 from bogie_env.stability import critical_speed
 from bogie_env.dynamics import BogieModel
 from bogie_env.params import load_params
@@ -284,6 +285,13 @@ def test_default_parts_give_margins_where_python_control_is_installed(monkeypatc
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "control" else real(name, *a))
     assert cli._default_v2_parts() == "critical,cost"
     assert "python-control is not installed" in capsys.readouterr().err
+
+
+def test_block_values_are_each_blocks_lowest_seed():
+    assert sp.block_values([5.0, 3.0, 4.0, 9.0, 1.0, 2.0], block=3) == [3.0, 1.0]
+    assert sp.block_values(list(range(20, 0, -1))) == [11, 1]
+    with pytest.raises(ConfigError, match="blocks of 10"):
+        sp.block_values([1.0] * 15)
 
 
 def test_columns_by_conicity_puts_the_nominal_column_under_its_conicity():
