@@ -252,12 +252,28 @@ class LQGController(LQRController):
     displacement and yaw relative to the frame. Process noise: the track alignment entering the
     wheelset lateral equations; measurement noise: 1 % of each sensor's scale (plus the env's
     configured noise). Gains and filter are scheduled on the measured speed.
+
+    With the env's sensor model (``sensors.enabled``, the v1 ids; ``sensor_model=None`` follows
+    the config) the design model is the sampled plant the env runs
+    (:func:`bogie_agents.margins.sampled_loop_plant`): each channel's command delay
+    (``delay_steps``) as a shift register and each sensor's anti-alias filter as a state, so the
+    LQR gains are designed for the loop delay; and the filter estimates each sensor's
+    per-episode bias as a slow random walk (``bias_time_s``), so a constant bias (a 7.5 mg
+    accelerometer offset, a 0.2 deg/s gyro offset) is not read as motion and held against by
+    the actuators. Without the sensor model (v0) the design is the one above, unchanged.
     """
 
     name = "lqg"
     observation_type = "sensors"
+    #: correlation time of the bias random walk in the filter's model, s: biases are learned
+    #: over a few seconds, much slower than hunting (2-10 Hz)
+    bias_time_s = 2.0
 
-    def __init__(self, env_config: dict, **kwargs) -> None:
+    def __init__(self, env_config: dict, sensor_model: bool | None = None, **kwargs) -> None:
+        enabled = bool(env_config.get("sensors", {}).get("enabled"))
+        self.sensor_model = enabled if sensor_model is None else bool(sensor_model)
+        if self.sensor_model and not enabled:
+            raise ValueError("LQGController: sensor_model=True needs the env's sensor model (config 'sensors.enabled': true)")
         super().__init__(env_config, **kwargs)
         for point in self.points:
             self._design_filter(point)
@@ -265,8 +281,54 @@ class LQGController(LQRController):
         self.cds = np.stack([p.cd for p in self.points])
         self.ads = np.stack([p.ad for p in self.points])
         self.bds = np.stack([p.bd for p in self.points])
-        self.estimate = np.zeros((0, N_LAT + self.n_act))
+        self.n_aug = self.ads.shape[1]
+        self.feedthrough = np.zeros((len(T.SENSORS), self.n_act))  # no direct path from command to sensor
+        self.estimate = np.zeros((0, self.n_aug))
         self.last_action = np.zeros((0, self.n_act))
+
+    def _design(self, speed: float) -> DesignPoint:
+        if not self.sensor_model:
+            return super()._design(speed)
+        ad, bd, cd = self.sampled_model(speed)
+        n_plant = ad.shape[0] - len(T.SENSORS)  # without the bias states: stabilisable
+        q, r = self.weights()
+        q_plant = np.zeros((n_plant, n_plant))
+        q_plant[: q.shape[0], : q.shape[0]] = q
+        a_p, b_p = ad[:n_plant, :n_plant], bd[:n_plant]
+        p = solve_discrete_are(a_p, b_p, q_plant, r)
+        gain = np.zeros((self.n_act, ad.shape[0]))
+        gain[:, :n_plant] = np.linalg.solve(r + b_p.T @ p @ b_p, b_p.T @ p @ a_p)
+        return DesignPoint(speed, gain, ad, bd, cd=cd)
+
+    def sampled_model(self, speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """With the sensor model: ``(A, B, C)`` of ``[x_lat, F, command registers, sensor
+        filters, sensor biases]`` at ``speed`` (m/s), sampled at the control step; ``y = C z``
+        is the six sensors in observation units."""
+        from .margins import sampled_loop_plant, sensor_filters
+
+        a_c, b_c = self.continuous_model(speed)
+        c_xf, _ = self.measurement_matrix(speed)
+        delays = [int(self.config["actuators"][CHANNEL_NAMES[k]]["delay_steps"]) for k in self.active]
+        rows, weights = sensor_filters(self.config)
+        n_s = len(T.SENSORS)
+        a, b, c, _, _ = sampled_loop_plant(a_c, b_c, c_xf, self.dt, delays, rows[:n_s], weights[:n_s])
+        n = a.shape[0]
+        ad, bd, cd = np.eye(n + n_s), np.zeros((n + n_s, self.n_act)), np.zeros((n_s, n + n_s))
+        ad[:n, :n], bd[:n], cd[:, :n] = a, b, c
+        cd[:, n:] = np.eye(n_s)  # each sensor reads its bias on top
+        return ad, bd, cd
+
+    def sensor_errors(self) -> tuple[np.ndarray, np.ndarray]:
+        """With the sensor model: each sensor's per-sample noise rms and bias standard
+        deviation, in observation units (``bogie_env.envs.sensors``)."""
+        from bogie_env.envs.sensors import SENSOR_NAMES, noise_rms
+
+        p = self.model.params
+        scales = np.array([T.ACCEL_SCALE, T.YAW_RATE_SCALE, p.delta, p.delta, T.REL_YAW_SCALE, T.REL_YAW_SCALE])
+        specs = [self.config["sensors"][name] for name in SENSOR_NAMES[: len(T.SENSORS)]]
+        noise = np.array([noise_rms(s["noise_density"], s["bandwidth_hz"]) for s in specs]) / scales
+        bias = np.array([s["bias"] for s in specs]) / scales
+        return noise, bias
 
     def measurement_matrix(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
         """y = C z + D u for the six physical sensors, in the observation's scaled units."""
@@ -290,7 +352,7 @@ class LQGController(LQRController):
         return c, d
 
     def _design_filter(self, point: DesignPoint) -> None:
-        c, _ = self.measurement_matrix(point.speed)
+        c = point.cd if self.sensor_model else self.measurement_matrix(point.speed)[0]
         n = point.ad.shape[0]
         # process noise: lateral forcing of the wheelsets (track alignment through creep) and
         # small white noise on every state, to keep the filter responsive
@@ -300,6 +362,11 @@ class LQGController(LQRController):
         w = g @ g.T * (0.05**2) + np.eye(n) * 1e-10
         noise = max(0.01, float(self.config["observation"]["noise"]))
         v = np.eye(c.shape[0]) * noise**2
+        if self.sensor_model:
+            sensor_noise, bias = self.sensor_errors()
+            n_s = len(T.SENSORS)
+            w[n - n_s :, n - n_s :] += np.diag(bias**2 * self.dt / self.bias_time_s)
+            v = np.diag(np.maximum(sensor_noise, noise) ** 2)
         p = solve_discrete_are(point.ad.T, c.T, w, v)
         point.kalman = p @ c.T @ np.linalg.inv(c @ p @ c.T + v)
         point.cd = c
@@ -307,7 +374,7 @@ class LQGController(LQRController):
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         super().reset(n_envs, rows)
         if rows is None or self.estimate.shape[0] != n_envs:
-            self.estimate = np.zeros((n_envs, N_LAT + self.n_act))
+            self.estimate = np.zeros((n_envs, self.n_aug))
             self.last_action = np.zeros((n_envs, self.n_act))
         else:
             self.estimate[rows] = 0.0
@@ -332,8 +399,7 @@ class LQGController(LQRController):
         # predict with the last command, then correct with the new measurement
         prior = np.einsum("nij,nj->ni", ad, self.estimate) + np.einsum("nij,nj->ni", bd, self.last_action)
         measured = obs[:, : len(T.SENSORS)].astype(float)
-        _, d = self.measurement_matrix(float(np.mean(speed)) / KMH)
-        predicted = np.einsum("nij,nj->ni", cd, prior) + self.last_action @ d.T
+        predicted = np.einsum("nij,nj->ni", cd, prior) + self.last_action @ self.feedthrough.T
         self.estimate = prior + np.einsum("nij,nj->ni", kal, measured - predicted)
         gains = self.gain_at(speed)
         actions = np.clip(-np.einsum("nij,nj->ni", gains, self.estimate), -1.0, 1.0)

@@ -460,7 +460,7 @@ def lqg_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
     v = np.array([speed_kmh])
     ad, bd = policy._interp(policy.ads, v)[0], policy._interp(policy.bds, v)[0]
     cd, kal = policy._interp(policy.cds, v)[0], policy._interp(policy.kalmans, v)[0]
-    _, dmeas = policy.measurement_matrix(speed_kmh / KMH)
+    dmeas = policy.feedthrough
     gain = policy.gain_at(v)[0]
     n_aug, m = ad.shape[0], policy.n_act
     n_s = len(T.SENSORS)

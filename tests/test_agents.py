@@ -15,6 +15,7 @@ from bogie_agents.cli import main as cli_main
 from bogie_env.analysis.bifurcation import nonlinear_critical_speed
 from bogie_env.envs.config import make_config, merge_config
 from bogie_env.envs.hunting_env import BogieHuntingEnv
+from bogie_env.dynamics import state_index
 from bogie_env.params import ConfigError
 from bogie_env.stability import critical_speed
 
@@ -54,6 +55,36 @@ def test_lqg_filter_is_stable(lqg_design):
     for point in lqg.points[::5]:
         estimator = point.ad - point.kalman @ point.cd @ point.ad
         assert np.abs(np.linalg.eigvals(estimator)).max() < 1.0
+
+
+def test_v1_lqg_does_not_hold_the_bogie_against_sensor_biases():
+    """Oracle: on perfect track, at rest and below hunting, the bogie's true equilibrium is
+    centred and needs no force, whatever the sensors' constant offsets read. The v1 LQG (bias
+    states in its filter) settles there; the design without them holds the wheelsets off
+    centre against the biases (not vacuous), as protocol v2 measured on the nominal bogie."""
+    from bogie_env.envs.sensors import SENSOR_NAMES
+    from bogie_env.envs.task import HuntingTask
+
+    config = make_config({"speed": {"start_kmh": 300.0, "end_kmh": 300.0, "accel": 0.0}, "track": {"level": None, "rms": 0.0},
+                          "randomize": {}, "initial_perturbation": 1e-4,
+                          "sensors": {name: {"noise_density": 0.0} for name in SENSOR_NAMES}}, variant="v1")  # fmt: skip
+    n = 6
+    wheelsets = [state_index("y1"), state_index("y2")]
+    offset = {}
+    for sensor_model in (True, False):
+        lqg = LQGController(config, sensor_model=sensor_model, v_range_kmh=(280.0, 320.0))
+        task = HuntingTask(n, config)
+        task.seed_rows(np.arange(n), list(range(n)))
+        task.reset_rows(np.arange(n))
+        lqg.reset(n)
+        tail = []
+        for step in range(800):
+            task.step(lqg.act(task.obs.copy()))
+            if step >= 600:
+                tail.append(np.abs(task.states[:, wheelsets]).max(axis=1))
+        offset[sensor_model] = np.mean(tail, axis=0) / lqg.model.params.delta
+    assert offset[True].max() < 0.01, offset[True]
+    assert offset[False].max() > 0.3, offset[False]
 
 
 @pytest.mark.parametrize("cls", [PassiveController, SkyhookController, LQGController])

@@ -285,6 +285,14 @@ def v1_config():
 
 @pytest.fixture(scope="module")
 def v1_lqg(v1_config):
+    """The LQG designed without the sensor model on the v1 plant: its loops are near their
+    limits (a 34-39 ms frame-lateral delay margin), which makes the delay oracles below
+    discriminating; the shipped v1 design is checked in test_v1_sensor_model_lqg_*."""
+    return LQGController(v1_config, sensor_model=False, v_range_kmh=(400.0, 500.0))
+
+
+@pytest.fixture(scope="module")
+def v1_sensor_lqg(v1_config):
     return LQGController(v1_config, v_range_kmh=(400.0, 500.0))
 
 
@@ -446,7 +454,7 @@ class _HookedLQG(LQGController):
 
 
 def test_controller_model_hook_is_used(v1_config, v1_lqg_loop):
-    policy = _HookedLQG(v1_config, v_range_kmh=(400.0, 500.0))
+    policy = _HookedLQG(v1_config, sensor_model=False, v_range_kmh=(400.0, 500.0))
     loop = M.linear_loop(policy, v1_config, SPEED_KMH)
     assert loop.ctrl.method == "hooked LQG at half gain"
     y0 = M.observe(loop.plant.x_eq, loop.plant.force_eq, SPEED_KMH / 3.6, M.policy_config(v1_config, policy), loop.plant.model)[0]
@@ -508,3 +516,24 @@ def test_v1_lqg_margins_hold_in_nonlinear_simulation(v1_config, v1_lqg, v1_lqg_l
     0.9 / 1.1 x its gain margin and 0.9 / 1.1 x its delay margin (to 1 ms) decays / grows."""
     model = v1_lqg_loop.plant.model
     _assert_verdicts(_verdicts(v1_lqg, v1_config, model, v1_lqg_loop, v1_lqg_margins))
+
+
+def test_v1_sensor_model_lqg_model_matches_act_and_its_delay_verdicts_hold(v1_config, v1_sensor_lqg):
+    """The v1 LQG (delay registers, sensor filters and bias states in its filter): its linear
+    controller model reproduces act(), and in the env itself (nonlinear bogie, rate limits,
+    filters) the all-loop extra delay its margins tolerate decays and one step more grows."""
+    policy = v1_sensor_lqg
+    assert policy.sensor_model
+    loop = M.linear_loop(policy, v1_config, SPEED_KMH)
+    config = M.policy_config(v1_config, policy)
+    y0 = M.observe(loop.plant.x_eq, loop.plant.force_eq, SPEED_KMH / 3.6, config, loop.plant.model)[0]
+    assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 1e-3
+    margins = M.loop_margins(loop)
+    assert margins["closed_loop_stable"]
+    k = margins["all_loops_extra_delay_steps"]
+    for extra, sign in ((k, -1), (k + 1, 1)):
+        predicted = loop.with_extra_delay(extra).growth_rate()
+        assert np.sign(predicted) == sign and abs(predicted) > 0.2, (extra, predicted)
+        out = M.simulate_env(policy, v1_config, SPEED_KMH, 6.0, extra_delay_steps=extra)
+        dev = M.deviation(out["x"][:, None, :], loop.plant.x_eq)[:, 0]
+        assert np.sign(M.envelope_growth_rate(out["t"], dev, skip_s=1.0)) == sign, extra
