@@ -816,6 +816,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--variant", default="v1")
     parser.add_argument("--w-track", default=None,
                         help="retune: the track weight, one number or one per stage-2 row, comma-separated (default: the shipped table's)")
+    parser.add_argument("--w-yaw", type=float, default=None,
+                        help="retune: the weight of the wheelset-yaw command per mm of alignment (default: the shipped table's, 0.05)")
     parser.add_argument("--washout-order", type=int, default=1, choices=WASHOUT_ORDERS,
                         help="design: the filter bank's washout order (filter_bank; the shipped table: 1)")
     args = parser.parse_args(argv)
@@ -854,11 +856,16 @@ def main(argv: list[str] | None = None) -> None:
                 track.track_weight(track.speeds_kmh[0])  # checks the count
             except ValueError as error:
                 parser.error(str(error))
+        if args.w_yaw is not None:
+            if not (math.isfinite(args.w_yaw) and args.w_yaw >= 0.0):
+                parser.error(f"--w-yaw = {args.w_yaw!r}: allowed: a finite number >= 0")
+            track.w_yaw = args.w_yaw
         report_row = _progress_printer(len(track.speeds_kmh))
         base = load_gains(args.base)
         table = retune_track(config, base, track, progress=lambda row: report_row(json.dumps(row)))
         table["command"] = (f"{base.get('command', '?')} --out STAGE1; python -m bogie_agents.robust retune --variant {args.variant} --base STAGE1"
-                            + (f" --w-track {args.w_track}" if args.w_track is not None else ""))  # fmt: skip
+                            + (f" --w-track {args.w_track}" if args.w_track is not None else "")
+                            + (f" --w-yaw {args.w_yaw:g}" if args.w_yaw is not None else ""))  # fmt: skip
         save_gains(table, args.out)
         print(f"wrote {args.out}")
         return

@@ -426,3 +426,11 @@ def test_retune_w_track_names_a_bad_value(w_track, message, capsys, tmp_path):
         main(["retune", "--base", str(GAINS_FILE.with_name("robust_gains_stage1.json")), "--w-track", w_track,
               "--out", str(tmp_path / "g.json")])  # fmt: skip
     assert message in capsys.readouterr().err and not (tmp_path / "g.json").exists()
+
+
+@pytest.mark.parametrize("w_yaw", ["-0.1", "nan"])
+def test_retune_w_yaw_names_a_bad_value(w_yaw, capsys, tmp_path):
+    with pytest.raises(SystemExit):
+        main(["retune", "--base", str(GAINS_FILE.with_name("robust_gains_stage1.json")), "--w-yaw", w_yaw,
+              "--out", str(tmp_path / "g.json")])  # fmt: skip
+    assert "--w-yaw" in capsys.readouterr().err and not (tmp_path / "g.json").exists()
