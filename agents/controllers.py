@@ -323,8 +323,7 @@ class LQGController(LQRController):
         deviation, in observation units (``bogie_env.envs.sensors``)."""
         from bogie_env.envs.sensors import SENSOR_NAMES, noise_rms
 
-        p = self.model.params
-        scales = np.array([T.ACCEL_SCALE, T.YAW_RATE_SCALE, p.delta, p.delta, T.REL_YAW_SCALE, T.REL_YAW_SCALE])
+        scales = T.sensor_scales(self.model.params.delta)[: len(T.SENSORS)]
         specs = [self.config["sensors"][name] for name in SENSOR_NAMES[: len(T.SENSORS)]]
         noise = np.array([noise_rms(s["noise_density"], s["bandwidth_hz"]) for s in specs]) / scales
         bias = np.array([s["bias"] for s in specs]) / scales

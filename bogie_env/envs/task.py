@@ -123,6 +123,12 @@ def speed_index(observation_type: str) -> int:
     return N_STATES if observation_type == "state" else len(SENSORS)
 
 
+def sensor_scales(delta: float) -> np.ndarray:
+    """SI value of one observation unit per measured channel (the six ``SENSORS`` and the
+    speed: the observation's scales); ``delta`` is the flange clearance (m)."""
+    return np.array([ACCEL_SCALE, YAW_RATE_SCALE, delta, delta, REL_YAW_SCALE, REL_YAW_SCALE, SPEED_SCALE_KMH / KMH])
+
+
 def speed_kmh_from_observation(obs: np.ndarray, observation_type: str) -> np.ndarray:
     """The speed (km/h) read back from a batch of observations."""
     return obs[:, speed_index(observation_type)].astype(float) * SPEED_SCALE_KMH + SPEED_CENTRE_KMH
@@ -600,7 +606,7 @@ class HuntingTask:
             if self.sensors_enabled:
                 self.sensor_bias[i] = draw_biases(self.config["sensors"], rng)
                 self.sensor_rng[i] = np.uint64(rng.integers(1, 2**63))
-                self.sensor_scale[i] = self._sensor_scales(model.coefficients[P_DELTA])
+                self.sensor_scale[i] = sensor_scales(model.coefficients[P_DELTA])
             self.episode[i] = 0.0
             self.episode[i, E_ONSET_KMH] = np.nan
             self.episode[i, E_END_DISTANCE] = slot.end_m if self.on_routes else np.inf
@@ -644,11 +650,6 @@ class HuntingTask:
             if not np.isnan(held_force):
                 self.sim.lag[i, FORCE, k] = self.sim.delay[i, :, FORCE, k] = held_force
                 self.sim.lag[i, DAMPING, k] = self.sim.delay[i, :, DAMPING, k] = held_damping
-
-    @staticmethod
-    def _sensor_scales(delta: float) -> np.ndarray:
-        """SI value of one observation unit per measured channel (the observation's scales)."""
-        return np.array([ACCEL_SCALE, YAW_RATE_SCALE, delta, delta, REL_YAW_SCALE, REL_YAW_SCALE, SPEED_SCALE_KMH / KMH])
 
     def scenario(self, row: int = 0) -> dict[str, Any]:
         """What row's episode runs with: parameter factors, conicity, faults (JSON-friendly)."""
