@@ -203,7 +203,8 @@ class LQRController(Controller):
         return DesignPoint(speed, gain, ad, bd)
 
     def closed_loop_eigenvalues(self, speed_kmh: float) -> np.ndarray:
-        """Discrete closed-loop eigenvalues of the design model at a design speed (|z| < 1: stable)."""
+        """Discrete closed-loop eigenvalues of the design model at a design speed (|z| < 1: stable;
+        the v1 LQG's sensor-bias states, which no command moves, stay at |z| = 1)."""
         k = int(np.argmin(np.abs(self.speeds_kmh - speed_kmh)))
         point = self.points[k]
         return np.linalg.eigvals(point.ad - point.bd @ point.gain)
@@ -211,12 +212,17 @@ class LQRController(Controller):
     # ---- runtime ------------------------------------------------------------------------------
     def gain_at(self, speed_kmh: np.ndarray) -> np.ndarray:
         """Linearly interpolated gains, (n, n_act, n_aug)."""
+        return self._interp(self.gains, speed_kmh)
+
+    def _interp(self, stack: np.ndarray, speed_kmh: np.ndarray) -> np.ndarray:
+        """``stack`` (one matrix per design speed) interpolated linearly at each row's speed,
+        clipped to the design range."""
         v = np.clip(speed_kmh, self.speeds_kmh[0], self.speeds_kmh[-1])
         pos = (v - self.speeds_kmh[0]) / (self.speeds_kmh[1] - self.speeds_kmh[0]) if len(self.speeds_kmh) > 1 else v * 0
         i0 = np.clip(np.floor(pos).astype(int), 0, len(self.speeds_kmh) - 1)
         i1 = np.clip(i0 + 1, 0, len(self.speeds_kmh) - 1)
         w = (pos - i0)[:, None, None]
-        return (1 - w) * self.gains[i0] + w * self.gains[i1]
+        return (1 - w) * stack[i0] + w * stack[i1]
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         if rows is None or self.force_state.shape[0] != n_envs:
@@ -378,15 +384,6 @@ class LQGController(LQRController):
         else:
             self.estimate[rows] = 0.0
             self.last_action[rows] = 0.0
-
-    def _interp(self, stack: np.ndarray, speed_kmh: np.ndarray) -> np.ndarray:
-        v = np.clip(speed_kmh, self.speeds_kmh[0], self.speeds_kmh[-1])
-        step = self.speeds_kmh[1] - self.speeds_kmh[0]
-        pos = (v - self.speeds_kmh[0]) / step
-        i0 = np.clip(np.floor(pos).astype(int), 0, len(self.speeds_kmh) - 1)
-        i1 = np.clip(i0 + 1, 0, len(self.speeds_kmh) - 1)
-        w = (pos - i0)[:, None, None]
-        return (1 - w) * stack[i0] + w * stack[i1]
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         n = obs.shape[0]

@@ -24,7 +24,7 @@ from bogie_agents.controllers import LQGController, LQRController, PassiveContro
 from bogie_env.actuators import channel_table
 from bogie_env.dynamics import BogieModel, N_STATES
 from bogie_env.envs.config import bogie_params, make_config
-from bogie_env.envs.task import HuntingTask
+from bogie_env.envs.task import SENSORS, HuntingTask
 from bogie_env.simulator import BatchSimulator
 
 SPEED_KMH = 450.0  # above the passive critical speed (356 km/h): the plant alone is unstable
@@ -537,3 +537,23 @@ def test_v1_sensor_model_lqg_model_matches_act_and_its_delay_verdicts_hold(v1_co
         out = M.simulate_env(policy, v1_config, SPEED_KMH, 6.0, extra_delay_steps=extra)
         dev = M.deviation(out["x"][:, None, :], loop.plant.x_eq)[:, 0]
         assert np.sign(M.envelope_growth_rate(out["t"], dev, skip_s=1.0)) == sign, extra
+
+
+def test_v1_lqg_design_model_is_the_margins_plant(v1_config, v1_sensor_lqg):
+    """Independent formulation: the v1 LQG's design model without its bias states (lateral
+    Jacobian, delay registers, sensor filters) has the transfer matrix, command to the six
+    sensors, of the margins' plant built from the full 20-state Jacobian and validated against
+    the env (test_v1_plant_matches_the_env_observation_response), at frequencies across the
+    hunting band and above."""
+    ad, bd, cd = v1_sensor_lqg.sampled_model(SPEED_KMH / 3.6)
+    n = ad.shape[0] - len(SENSORS)
+    plant = M.plant_model(M.policy_config(v1_config, v1_sensor_lqg), SPEED_KMH, model=v1_sensor_lqg.model)
+
+    def transfer(a, b, c, f_hz):
+        z = np.exp(2j * np.pi * f_hz * plant.dt)
+        return c @ np.linalg.solve(z * np.eye(a.shape[0]) - a, b)
+
+    for f_hz in (0.5, 2.0, 5.0, 12.0, 30.0):
+        ours = transfer(ad[:n, :n], bd[:n], cd[:, :n], f_hz)
+        reference = transfer(plant.a, plant.b, plant.c[: len(SENSORS)], f_hz)
+        assert np.max(np.abs(ours - reference)) <= 1e-8 * np.max(np.abs(reference)), f_hz
