@@ -158,6 +158,11 @@ class LQRController(Controller):
     def __init__(self, env_config: dict, r: float = 1.0, step_kmh: float = 10.0, model: BogieModel | None = None,
                  v_range_kmh: tuple[float, float] | None = None) -> None:  # fmt: skip
         super().__init__(env_config)
+        for k in self.active:
+            mode = env_config["actuators"][CHANNEL_NAMES[k]]["mode"]
+            if mode != "force":
+                raise ValueError(f"{self.name}: config 'actuators.{CHANNEL_NAMES[k]}.mode' = {mode!r}; the LQR/LQG design "
+                                 "commands forces: allowed 'force' or 'off'")  # fmt: skip
         self.model = model if model is not None else BogieModel(bogie_params(env_config))
         self.lin = linearize(self.model)
         self.r = r

@@ -272,3 +272,12 @@ def test_results_writes_json_table_and_plots_and_resumes(tmp_path, monkeypatch, 
     monkeypatch.setattr(results, "evaluate_policy", lambda *a, **k: pytest.fail("re-evaluated a finished controller"))
     again = results.run(["passive", "skyhook"], env_config, tmp_path, resume=True, settings=FAST, parts=("ramp", "effort"))
     assert [r["ramp"] for r in again["policies"]] == [r["ramp"] for r in payload["policies"]]
+
+
+@pytest.mark.parametrize("cls", [LQRController, LQGController])
+def test_lqr_lqg_refuse_semi_active_channels(cls):
+    """Their design model commands forces; a semi-active channel's action is a damping
+    coefficient, so the design would be silently wrong."""
+    config = make_config({"actuators": {"frame_yaw": {"mode": "semi_active"}}}, variant="v1")
+    with pytest.raises(ValueError, match=r"actuators\.frame_yaw\.mode.*'semi_active'.*allowed 'force' or 'off'"):
+        cls(config, v_range_kmh=(300.0, 310.0))
