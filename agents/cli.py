@@ -23,8 +23,8 @@ from typing import Sequence
 
 from bogie_env import cli as library_cli
 from bogie_env.fileio import write_text_atomic
-from bogie_env.cli import (SEED, argument, backend_options, bogie_options, check_backend_args, command, env_config_from_args,
-                           json_option, print_json)  # fmt: skip
+from bogie_env.cli import (SEED, argument, backend_options, bogie_options, bounded, check_backend_args, command,
+                           env_config_from_args, json_option, print_json)  # fmt: skip
 from bogie_env.params import ConfigError
 
 #: Modules of the ``[agents]`` extra: a missing one is reported with the install command.
@@ -105,6 +105,9 @@ def _env_variant(env_id: str) -> str | None:
                "margins needs the [margins] extra), curving, "
                "ramp and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
+@argument("--n-sub", type=bounded(int, 1, 1000), default=None,
+          help="RK4 substeps per env step for every run of the protocol (default: the env's own step; v1: 10). "
+               "40 runs the v1 protocol with the integration converged (docs/results.md, 'Step convergence')")
 @argument("--env-config", default=None, help="env config YAML (default: the env's default_config)")
 @argument("--env", default="Bogie/Hunting-v1",
           help="env id whose task to evaluate on (its variant; --env-config merges into it); its version picks the "
@@ -115,13 +118,14 @@ def _env_variant(env_id: str) -> str | None:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     check_backend_args(args)
     _check_workers(args)
-    env_config = env_config_from_args(args, _env_variant(args.env))
+    env_config = with_substeps(env_config_from_args(args, _env_variant(args.env)), args.n_sub)
     env_version = args.env.rsplit("-", 1)[-1]
     if env_version == "v0":
         results, protocol_version = _evaluate_v1(args, env_config), 1
     else:
         results, protocol_version = _evaluate_v2(args, env_config), 2
-    payload = {"env_id": args.env, "env_version": env_version, "protocol_version": protocol_version, "policies": results}
+    payload = {"env_id": args.env, "env_version": env_version, "protocol_version": protocol_version,
+               "integration_n_sub": env_config["integration"]["n_sub"], "policies": results}  # fmt: skip
     if args.out:
         write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
     if args.json:
@@ -134,6 +138,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         for r in results:
             print(v2_summary(r))
     return 0
+
+
+def with_substeps(env_config: dict, n_sub: int | None) -> dict:
+    """``env_config`` with ``integration.n_sub`` set (None: unchanged, the env's own step)."""
+    if n_sub is None:
+        return env_config
+    from bogie_env.envs.config import make_config, merge_config
+
+    return make_config(merge_config(env_config, {"integration": {"n_sub": int(n_sub)}}))
 
 
 def _requested_parts(args: argparse.Namespace, allowed: set[str], default: str) -> tuple[str, ...]:

@@ -241,6 +241,26 @@ def test_cli_picks_the_protocol_by_env_version(capsys, monkeypatch):
     assert "allowed parts are critical, effort, margins, ramp, robustness" in capsys.readouterr().err
 
 
+def test_cli_n_sub_runs_every_task_of_the_protocol_at_that_step(capsys, monkeypatch):
+    from bogie_agents.cli import main as cli_main
+
+    real, real_task, used = sp.Settings, sp.HuntingTask, []
+
+    def recording_task(n, config):
+        task = real_task(n, config)
+        used.append(task.n_sub)
+        return task
+
+    monkeypatch.setattr(sp, "Settings", lambda **kw: real(**{**tiny_kwargs(seeds=1, columns=("conicity:0.1",)), **kw}))
+    monkeypatch.setattr(sp, "HuntingTask", recording_task)
+    assert cli_main(["evaluate", "--policy", "passive", "--parts", "critical", "--n-sub", "20", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["integration_n_sub"] == 20
+    assert used and set(used) == {20}
+    with pytest.raises(SystemExit):
+        cli_main(["evaluate", "--policy", "passive", "--n-sub", "0"])
+    assert "--n-sub" in capsys.readouterr().err
+
+
 def _entry(kmh: float, bound: str = "bisection to 2 km/h") -> dict:
     return {"kmh": kmh, "bound": bound, "spread_kmh": {"min": kmh, "median": kmh + 1, "max": kmh + 2}}
 
