@@ -293,8 +293,11 @@ def cmd_margins(args: argparse.Namespace) -> int:
 
 
 @command("results", "evaluate several controllers; write results.json and table.md (v1 env: protocol v2; v0: plots too)")
-@argument("--resume", action="store_true", help="keep controllers already in OUT/results.json")
+@argument("--resume", action="store_true", help="keep controllers already in OUT/results.json (run at the same --n-sub)")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
+@argument("--n-sub", type=bounded(int, 1, 1000), default=None,
+          help="RK4 substeps per env step for every run (default: the env's own step; v1: 10); written into "
+               "results.json (integration_n_sub) and below the table")
 @argument("--env-config", default=None)
 @argument("--env", default="Bogie/Hunting-v1",
           help="env id (its version picks the protocol: -v1 ids protocol v2 with critical, cost and margins; "
@@ -308,8 +311,10 @@ def cmd_results(args: argparse.Namespace) -> int:
 
     check_backend_args(args)
     _check_workers(args)
-    env_config = env_config_from_args(args, _env_variant(args.env))
+    env_config = with_substeps(env_config_from_args(args, _env_variant(args.env)), args.n_sub)
     if args.env.rsplit("-", 1)[-1] == "v0":
+        if args.n_sub is not None:
+            raise ConfigError("--n-sub sets protocol v2's step (the -v1 ids); protocol v1 keeps the -v0 ids' own step")
         payload = run(args.policy, env_config, Path(args.out), args.resume, args.seed, trusted=args.trust_policy,
                       backend=args.backend, address=args.address, workers=args.workers)  # fmt: skip
     else:

@@ -247,10 +247,11 @@ def v2_columns(result: dict) -> dict[str, dict | None]:
     return cols
 
 
-def v2_table(results: list[dict]) -> str:
+def v2_table(results: list[dict], n_sub: int | None = None) -> str:
     """Protocol v2's table: closed-loop critical speeds per column (min over seeds, with the
     median-max of the seeds), margins and cost. A column where every controller sits at the
-    search ceiling separates nothing and is left out (named below the table)."""
+    search ceiling separates nothing and is left out (named below the table). ``n_sub``: the
+    RK4 substeps per env step the rows ran at, if set (``--n-sub``), stated below the table."""
     per = [v2_columns(r) for r in results]
     names = list(dict.fromkeys(name for cols in per for name in cols))
     dropped = [n for n in names if all(_at_ceiling(cols.get(n)) for cols in per)]
@@ -271,7 +272,8 @@ def v2_table(results: list[dict]) -> str:
     notes = ["", "Closed-loop critical speed in km/h: the highest speed all seeds pass, then (median-max) over the seeds."]
     if search:
         notes.append(f"Search {search['floor_kmh']:g}-{search['ceiling_kmh']:g} km/h ('≥' at the ceiling, '≤' at the floor), "
-                     f"{search['seeds']} seeds, bisection to {search['tol_kmh']:g} km/h (docs/results.md, protocol v2).")  # fmt: skip
+                     f"{search['seeds']} seeds, bisection to {search['tol_kmh']:g} km/h (docs/results.md, protocol v2)."
+                     + ("" if n_sub is None else f" RK4 at {n_sub} substeps per env step (--n-sub)."))  # fmt: skip
     notes.append("† a seed also fails at a grid speed below this value (fails_below_kmh in results.json).")
     if dropped:
         notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
@@ -308,6 +310,9 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
     from .stability_protocol import Settings, evaluate_policy_v2
 
     json_path, done = _results_folder(out, resume)
+    n_sub = env_config["integration"]["n_sub"]
+    if done:
+        _check_same_step(json_path, n_sub)
     settings = settings or Settings(seed=seed)
     todo = [spec for spec in dict.fromkeys(policies) if spec not in done]
     distributed: dict[str, dict] = {}
@@ -326,7 +331,21 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
         result = distributed.get(spec) or evaluate_policy_v2(spec, env_config, settings, parts, trusted=trusted)
         result["policy"] = spec
         results.append(result)
-        write_text_atomic(json_path, json.dumps({"protocol_version": 2, "policies": results}, indent=2, default=float))
-    write_text_atomic(json_path, json.dumps({"protocol_version": 2, "policies": results}, indent=2, default=float))
-    write_text_atomic(out / "table.md", v2_table(results))
+        write_text_atomic(json_path, _v2_payload(results, n_sub))
+    write_text_atomic(json_path, _v2_payload(results, n_sub))
+    write_text_atomic(out / "table.md", v2_table(results, n_sub))
     return {"policies": results}
+
+
+def _v2_payload(results: list[dict], n_sub: int | None) -> str:
+    """results.json's text; ``integration_n_sub`` only when a step was set (``--n-sub``)."""
+    head = {"protocol_version": 2} | ({} if n_sub is None else {"integration_n_sub": n_sub})
+    return json.dumps(head | {"policies": results}, indent=2, default=float)
+
+
+def _check_same_step(json_path: Path, n_sub: int | None) -> None:
+    """--resume keeps rows only when they ran at this run's integration step."""
+    before = json.loads(json_path.read_text()).get("integration_n_sub")
+    if before != n_sub:
+        raise ConfigError(f"--resume: {str(json_path)!r} holds rows run with integration_n_sub = {before}; this run has "
+                          f"{n_sub}: rows at different steps do not belong in one table; use another --out")  # fmt: skip

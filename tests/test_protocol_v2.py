@@ -295,6 +295,23 @@ def test_results_v2_writes_json_and_table_and_resumes(tmp_path, monkeypatch):
     assert again == json.loads(json.dumps(payload))
 
 
+def test_results_v2_records_the_step_and_resumes_only_at_it(tmp_path, capsys):
+    import bogie_agents.results as results
+    from bogie_agents.cli import main as cli_main
+    from bogie_env.params import ConfigError
+
+    settings = tiny(seeds=1, columns=("conicity:0.1",))
+    fine = make_config({"integration": {"n_sub": 20}}, variant="v1")
+    results.run_v2(["passive"], fine, tmp_path, settings=settings, parts=("critical",))
+    assert json.loads((tmp_path / "results.json").read_text())["integration_n_sub"] == 20
+    assert "RK4 at 20 substeps per env step" in (tmp_path / "table.md").read_text()
+    with pytest.raises(ConfigError, match="integration_n_sub = 20; this run has None"):
+        results.run_v2(["passive"], make_config(variant="v1"), tmp_path, resume=True, settings=settings, parts=("critical",))
+    assert cli_main(["results", "--env", "Bogie/Hunting-v0", "--policy", "passive", "--n-sub", "20",
+                     "--out", str(tmp_path / "v0")]) == 2  # fmt: skip
+    assert "--n-sub sets protocol v2's step" in capsys.readouterr().err
+
+
 def test_default_parts_give_margins_where_python_control_is_installed(monkeypatch, capsys):
     import importlib.util
 
