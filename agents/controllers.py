@@ -132,6 +132,30 @@ def discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.
     return e[:n, :n], e[:n, n:]
 
 
+def sensor_matrix(a_cont: np.ndarray, params) -> np.ndarray:
+    """The six sensors of ``task.SENSORS`` (observation units) as rows over the states of a
+    continuous design model ``[x_lat, F, ...]`` whose A is ``a_cont`` (the frame's lateral
+    acceleration is that model's ``dyb`` row); ``params``: the bogie's (``delta``, ``L1``).
+    One definition for the LQG and ``robust.DesignModel``; ``margins.observe`` is the
+    independent one the tests compare with the env."""
+    idx = {name: LAT.index(state_index(name)) for name in ("y1", "y2", "yb", "psi1", "psi2", "psib", "dyb", "dpsib")}
+    delta, l1 = params.delta, params.L1
+    c = np.zeros((len(T.SENSORS), a_cont.shape[0]))
+    c[T.SENSOR_FRAME_LATERAL_ACCEL] = a_cont[idx["dyb"]] / T.ACCEL_SCALE
+    c[T.SENSOR_FRAME_YAW_RATE, idx["dpsib"]] = 1.0 / T.YAW_RATE_SCALE
+    for row, ws, arm in ((T.SENSOR_WHEELSET1_LATERAL, "y1", -l1), (T.SENSOR_WHEELSET2_LATERAL, "y2", l1)):
+        c[row, idx[ws]], c[row, idx["yb"]], c[row, idx["psib"]] = 1 / delta, -1 / delta, arm / delta
+    for row, ws in ((T.SENSOR_WHEELSET1_YAW, "psi1"), (T.SENSOR_WHEELSET2_YAW, "psi2")):
+        c[row, idx[ws]], c[row, idx["psib"]] = 1 / T.REL_YAW_SCALE, -1 / T.REL_YAW_SCALE
+    return c
+
+
+def lqr_gain(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Discrete LQR: ``K`` of ``u = -K x`` from the stabilising solution of the DARE."""
+    p = solve_discrete_are(a, b, q, r)
+    return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
+
+
 @dataclass
 class DesignPoint:
     speed: float  # m/s
@@ -203,9 +227,7 @@ class LQRController(Controller):
         a, b = self.continuous_model(speed)
         ad, bd = discretize(a, b, self.dt)
         q, r = self.weights()
-        p = solve_discrete_are(ad, bd, q, r)
-        gain = np.linalg.solve(r + bd.T @ p @ bd, bd.T @ p @ ad)
-        return DesignPoint(speed, gain, ad, bd)
+        return DesignPoint(speed, lqr_gain(ad, bd, q, r), ad, bd)
 
     def closed_loop_eigenvalues(self, speed_kmh: float) -> np.ndarray:
         """Discrete closed-loop eigenvalues of the design model at a design speed (|z| < 1: stable;
@@ -305,10 +327,8 @@ class LQGController(LQRController):
         q, r = self.weights()
         q_plant = np.zeros((n_plant, n_plant))
         q_plant[: q.shape[0], : q.shape[0]] = q
-        a_p, b_p = ad[:n_plant, :n_plant], bd[:n_plant]
-        p = solve_discrete_are(a_p, b_p, q_plant, r)
         gain = np.zeros((self.n_act, ad.shape[0]))
-        gain[:, :n_plant] = np.linalg.solve(r + b_p.T @ p @ b_p, b_p.T @ p @ a_p)
+        gain[:, :n_plant] = lqr_gain(ad[:n_plant, :n_plant], bd[:n_plant], q_plant, r)
         return DesignPoint(speed, gain, ad, bd, cd=cd)
 
     def sampled_model(self, speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -318,7 +338,7 @@ class LQGController(LQRController):
         from .margins import sampled_loop_plant, sensor_filters
 
         a_c, b_c = self.continuous_model(speed)
-        c_xf, _ = self.measurement_matrix(speed)
+        c_xf = self.measurement_matrix(speed)
         delays = [int(self.config["actuators"][CHANNEL_NAMES[k]]["delay_steps"]) for k in self.active]
         rows, weights = sensor_filters(self.config)
         n_s = len(T.SENSORS)
@@ -340,29 +360,13 @@ class LQGController(LQRController):
         bias = np.array([s["bias"] for s in specs]) / scales
         return noise, bias
 
-    def measurement_matrix(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
-        """y = C z + D u for the six physical sensors, in the observation's scaled units."""
-        a, b = self.continuous_model(speed)
-        L1 = self.model.params.L1
-        delta = self.model.params.delta
-        idx = {name: LAT.index(state_index(name)) for name in ("y1", "y2", "yb", "psi1", "psi2", "psib", "dyb", "dpsib")}
-        c = np.zeros((len(T.SENSORS), a.shape[0]))
-        c[T.SENSOR_FRAME_LATERAL_ACCEL] = a[idx["dyb"]] / T.ACCEL_SCALE  # the dyb row
-        c[T.SENSOR_FRAME_YAW_RATE, idx["dpsib"]] = 1.0 / T.YAW_RATE_SCALE
-        row = T.SENSOR_WHEELSET1_LATERAL
-        c[row, idx["y1"]], c[row, idx["yb"]], c[row, idx["psib"]] = 1 / delta, -1 / delta, -L1 / delta
-        row = T.SENSOR_WHEELSET2_LATERAL
-        c[row, idx["y2"]], c[row, idx["yb"]], c[row, idx["psib"]] = 1 / delta, -1 / delta, L1 / delta
-        row = T.SENSOR_WHEELSET1_YAW
-        c[row, idx["psi1"]], c[row, idx["psib"]] = 1 / T.REL_YAW_SCALE, -1 / T.REL_YAW_SCALE
-        row = T.SENSOR_WHEELSET2_YAW
-        c[row, idx["psi2"]], c[row, idx["psib"]] = 1 / T.REL_YAW_SCALE, -1 / T.REL_YAW_SCALE
-        d = np.zeros((len(T.SENSORS), self.n_act))
-        d[T.SENSOR_FRAME_LATERAL_ACCEL] = b[idx["dyb"]] / T.ACCEL_SCALE
-        return c, d
+    def measurement_matrix(self, speed: float) -> np.ndarray:
+        """C of ``y = C z`` for the six physical sensors (observation units) over the design
+        model ``[x_lat, F]`` at ``speed`` (m/s): :func:`sensor_matrix`."""
+        return sensor_matrix(self.continuous_model(speed)[0], self.model.params)
 
     def _design_filter(self, point: DesignPoint) -> None:
-        c = point.cd if self.sensor_model else self.measurement_matrix(point.speed)[0]
+        c = point.cd if self.sensor_model else self.measurement_matrix(point.speed)
         n = point.ad.shape[0]
         # process noise: lateral forcing of the wheelsets (track alignment through creep) and
         # small white noise on every state, to keep the filter responsive

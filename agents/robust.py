@@ -51,7 +51,7 @@ from bogie_env.envs.scenario import CONICITY_GRID
 from bogie_env.params import ConfigError
 from bogie_env.stability import KMH, linearize
 
-from .controllers import Controller, discretize
+from .controllers import Controller, discretize, sensor_matrix
 
 if TYPE_CHECKING:
     from .margins import PlantModel
@@ -148,16 +148,10 @@ class DesignModel:
         return a, b
 
     def observation_matrix(self, a_cont: np.ndarray) -> np.ndarray:
-        """The clean observation (before the sensor filters) from ``[x_lat, F]``; the speed row is 0."""
-        p = self.model.params
-        idx = {name: LAT.index(state_index(name)) for name in ("y1", "y2", "yb", "psi1", "psi2", "psib", "dyb", "dpsib")}
+        """The clean observation (before the sensor filters) from ``[x_lat, F]``: the six sensors
+        (:func:`bogie_agents.controllers.sensor_matrix`), the speed row 0, the channel forces."""
         c = np.zeros((self.n_obs, N_LAT + self.n_act))
-        c[T.SENSOR_FRAME_LATERAL_ACCEL] = a_cont[idx["dyb"]] / T.ACCEL_SCALE
-        c[T.SENSOR_FRAME_YAW_RATE, idx["dpsib"]] = 1.0 / T.YAW_RATE_SCALE
-        for row, ws, sign in ((T.SENSOR_WHEELSET1_LATERAL, "y1", -1.0), (T.SENSOR_WHEELSET2_LATERAL, "y2", 1.0)):
-            c[row, idx[ws]], c[row, idx["yb"]], c[row, idx["psib"]] = 1 / p.delta, -1 / p.delta, sign * p.L1 / p.delta
-        for row, ws in ((T.SENSOR_WHEELSET1_YAW, "psi1"), (T.SENSOR_WHEELSET2_YAW, "psi2")):
-            c[row, idx[ws]], c[row, idx["psib"]] = 1 / T.REL_YAW_SCALE, -1 / T.REL_YAW_SCALE
+        c[: len(T.SENSORS)] = sensor_matrix(a_cont, self.model.params)
         if self.include_actuators:
             first = len(T.SENSORS) + 1
             c[first:, N_LAT:] = np.diag(1.0 / self.max_force)
