@@ -103,7 +103,7 @@ def _env_variant(env_id: str) -> str | None:
 @argument("--parts", default=None,
           help="which parts of the protocol to run. Protocol v2 (-v1 ids): critical, cost, margins (default: these three; "
                "margins needs the [margins] extra), curving, "
-               "ramp and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
+               "ramp, ramp_down (closed-loop ramp-down from fully developed hunting) and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--n-sub", type=bounded(int, 1, 1000), default=None,
           help="RK4 substeps per env step for every run of the protocol (default: the env's own step; v1: 10). "

@@ -52,8 +52,10 @@ a model-based controller (LQR, LQG) is gain-scheduled on that conicity; it is to
 about degraded parts, faults or the extra delay. A learned policy ignores its config.
 
 **Parts** are a registry (:data:`PARTS`, :func:`register_part`): ``critical`` (all the columns
-above), ``cost``, ``margins`` (:func:`bogie_agents.margins.margins_table`) and ``ramp`` (the
-env's own episode over 5 seeds, protocol v1's ramp onset). Another module
+above), ``cost``, ``margins`` (:func:`bogie_agents.margins.margins_table`), ``ramp`` (the
+env's own episode over 5 seeds, protocol v1's ramp onset) and ``ramp_down`` (per conicity of
+the grid, the speed where the controller stops hunting that was fully developed at the ceiling:
+the ramp-down method of the nonlinear critical speed, closed loop; :func:`ramp_down_part`). Another module
 adds a part by decorating ``fn(ctx: PartContext) -> dict`` with ``@register_part("name")``;
 the dict is merged into the controller's result. A module in :data:`PART_MODULES` is imported
 before the registry is read, so its parts are available to ``bogie evaluate --parts``
@@ -67,7 +69,7 @@ import importlib
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -142,6 +144,9 @@ class Settings:
     cost_duration_s: float = 20.0
     cost_seeds: int = 4
     margin_speeds_kmh: tuple[float, ...] = (300.0, 350.0, 400.0, 450.0, 500.0)
+    ramp_down_decel: float = 0.25  # m/s^2: 600 -> 40 km/h in 622 s (part ramp_down)
+    ramp_down_onset_s: float = 2.0  # passive hunting at the ceiling before the controller is switched on
+    ramp_down_stride_kmh: float = 2.0  # a window of the ramp (duration_s - transient_s long) starts every this many km/h
     progress: bool = True
     #: the scenario quantities every row pins (a column's own options override them); a
     #: sensitivity study may change one, e.g. ``damper_factor`` 1.0001
@@ -162,6 +167,10 @@ class Settings:
             raise ConfigError(f"protocol transient_s = {self.transient_s:g} must be in (0, duration_s = {self.duration_s:g})")
         if self.grid_ratio <= 1.0 or self.tol_kmh <= 0:
             raise ConfigError("protocol grid_ratio must be > 1 and tol_kmh > 0")
+        if not 0.0 < self.ramp_down_decel <= 2.0 or self.ramp_down_onset_s < 0 or self.ramp_down_stride_kmh <= 0:
+            raise ConfigError(f"protocol ramp_down_decel = {self.ramp_down_decel:g} m/s^2 must be in (0, 2], "
+                              f"ramp_down_onset_s = {self.ramp_down_onset_s:g} >= 0 and "
+                              f"ramp_down_stride_kmh = {self.ramp_down_stride_kmh:g} > 0")  # fmt: skip
 
 
 # ---- the pass criterion -----------------------------------------------------------------------
@@ -798,6 +807,113 @@ def ramp_part(ctx: PartContext) -> dict[str, Any]:
 
     config = policy_config(ctx.env_config, ctx.observation_type)
     return {"ramp": ramp_onset(ctx.policy(), config, ProtocolSettings(seed=ctx.settings.seed))}
+
+
+def hunting_end(failing: np.ndarray, top_kmh: np.ndarray, floor_kmh: float,
+                ceiling_kmh: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Where the hunting a ramp-down started with stops, per row. ``failing`` (rows, windows):
+    the criterion's verdict on each window of the ramp, highest speeds first; ``top_kmh``
+    (windows,): each window's highest speed. The failing run that begins with the first window
+    is that hunting; the first window that passes after it starts where the hunting has
+    stopped. Returns (speed km/h, bound, index of that window): ``at_least`` the ceiling if the
+    first window passes (the controller stopped the hunting during the hold), ``at_most`` the
+    floor if no window passes. Windows failing after the first pass (e.g. a track-forced flange
+    contact) do not lower the value."""
+    w = failing.shape[1]
+    first_pass = np.where(~failing, np.arange(w)[None, :], w).min(axis=1)
+    stopped = first_pass < w
+    value = np.where(stopped, top_kmh[np.minimum(first_pass, w - 1)], floor_kmh)
+    value[first_pass == 0] = ceiling_kmh
+    bound = np.where(first_pass == 0, "at_least", np.where(stopped, "bisected", "at_most"))
+    return value, bound, first_pass
+
+
+@register_part("ramp_down")
+def ramp_down_part(ctx: PartContext) -> dict[str, Any]:
+    """Closed-loop nonlinear critical speed by the ramp-down method, per conicity of the grid.
+
+    Each seed's bogie runs passive at the ceiling for ``ramp_down_onset_s`` from the 12 mm
+    start (fully developed hunting on every conicity of the grid), then the controller is
+    switched on (reset, as at a cold start), holds the ceiling for ``transient_s`` and ramps
+    down at ``ramp_down_decel`` to the floor. The protocol's criterion judges windows as long
+    as a fixed-speed run's assessed time (15 s), one starting every ``ramp_down_stride_kmh``;
+    the seed's value is where the hunting the ramp began with stops (:func:`hunting_end`):
+    the lowest speed at which that hunting, e.g. a limit cycle with the actuators saturated,
+    survives. The fixed-speed search asks whether a 12 mm start grows into hunting; this asks
+    whether the controller gets the bogie out of hunting, and the two differ where a stable
+    limit cycle coexists with the stable running state (hysteresis).
+    """
+    s = ctx.settings
+    nominal_lam = bogie_params(ctx.env_config).lam
+    names = ("nominal",) + tuple(f"conicity:{lam:g}" for lam in s.conicities if not math.isclose(lam, nominal_lam))
+    cols = columns(ctx.env_config, replace(s, columns=names))
+    cases = [c for col in cols.values() for c in col]
+    n = len(cases)
+    task, policy = Runner(ctx)._task(cases, np.full(n, s.ceiling_kmh), "default")
+    dt = task.config["dt"]
+    onset, hold = int(round(s.ramp_down_onset_s / dt)), int(round(s.transient_s / dt))
+    ramp = int(math.ceil((s.ceiling_kmh - s.floor_kmh) / 3.6 / s.ramp_down_decel / dt))
+    history = np.zeros((n, 3, ramp), dtype=np.float32)
+    contact = np.zeros((n, ramp), dtype=bool)
+    speed = np.zeros((n, ramp))
+    blowup = np.zeros(n, dtype=bool)
+    buffer = np.zeros((n, 3))
+    zero = np.zeros((n, task.action_dim))
+    total = onset + hold + ramp
+    for k in range(total):
+        if k == onset:
+            policy.reset(n)
+        if k == onset + hold:
+            task.ramp_rows(np.arange(n), -s.ramp_down_decel, s.floor_kmh)
+        actions = zero if k < onset else policy.act(task.obs)
+        bad = ~np.all(np.isfinite(actions), axis=1)
+        blowup |= bad
+        task.step(np.where(bad[:, None], 0.0, actions))
+        blowup |= task.blowup | ~np.all(np.isfinite(task.states), axis=1)
+        j = k - onset - hold
+        if j >= 0:
+            running_signals_rows(task.sim.rows, buffer)
+            history[:, :, j] = buffer
+            contact[:, j] = np.any(np.abs(task.relative_lateral_m) >= task.flange_clearance[:, None], axis=1)
+            speed[:, j] = task.speed_kmh
+        if k % 500 == 499:
+            ctx.progress.report(f"ramp down: {k + 1}/{total} steps of {n} rows", k + 1, total - k - 1)
+    axle = np.array([task.scenarios[i].axle_load * task.base_params.Wpa for i in range(n)])
+    # windows of the fixed-speed runs' assessed length, every ramp_down_stride_kmh
+    length = int(round((s.duration_s - s.transient_s) / dt))
+    stride = max(1, int(round(s.ramp_down_stride_kmh / 3.6 / s.ramp_down_decel / dt)))
+    starts = np.arange(0, ramp - length + 1, stride)
+    failing = np.zeros((n, starts.size), dtype=bool)
+    for w, a in enumerate(starts):
+        part = slice(a, a + length)
+        r = assess(history[:, :, part], contact[:, part].mean(axis=1), blowup, speed[:, part].mean(axis=1) / 3.6, dt,
+                   axle, task.base_params.mb, s)  # fmt: skip
+        failing[:, w] = ~r.passed
+    top_kmh = speed[0, starts]  # every row ramps alike: each window's highest speed
+    value, bound, first_pass = hunting_end(failing, top_kmh, s.floor_kmh, s.ceiling_kmh)
+    out: dict[str, Any] = {}
+    start = 0
+    for col in cols.values():
+        idx = np.arange(start, start + len(col))
+        start += len(col)
+        crit = value[idx]
+        worst = int(np.argmin(crit))
+        out[f"{col[0].conicity:g}"] = {
+            "kmh": round(float(crit[worst]), 1),
+            "bound": {"at_least": f"at least: the controller stops the hunting at the ceiling {s.ceiling_kmh:g} km/h",
+                      "at_most": f"at most: the bogie still hunts at the floor {s.floor_kmh:g} km/h",
+                      "bisected": f"windows every {s.ramp_down_stride_kmh:g} km/h"}[str(bound[idx[worst]])],
+            "seeds": [c.seed for c in col],
+            "per_seed_kmh": [round(float(v), 1) for v in crit],
+            "spread_kmh": {"min": round(float(crit.min()), 1), "median": round(float(np.median(crit)), 1),
+                           "max": round(float(crit.max()), 1)},
+            # windows below the hunting's end that fail again (their highest speeds), by seed
+            "fails_below_kmh": {str(col[a].seed): [round(float(top_kmh[w]), 1) for w in np.nonzero(failing[i, first_pass[i]:])[0] + first_pass[i]]
+                                for a, i in enumerate(idx) if failing[i, first_pass[i]:].any()},
+        }  # fmt: skip
+    return {"ramp_down": {"decel_m_per_s2": s.ramp_down_decel, "onset_s": s.ramp_down_onset_s, "hold_s": s.transient_s,
+                          "window_s": s.duration_s - s.transient_s, "window_every_kmh": s.ramp_down_stride_kmh, "floor_kmh": s.floor_kmh, "ceiling_kmh": s.ceiling_kmh,
+                          "by_conicity": out}}  # fmt: skip
 
 
 # ---- the protocol ---------------------------------------------------------------------------------

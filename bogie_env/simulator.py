@@ -391,6 +391,15 @@ class BatchSimulator:
         self.status[rows] = STATUS_OK
         _sample_rows(np.atleast_1d(np.arange(self.n)[rows]), self.motion, self.coefficients, self._track, self.track_sample)
 
+    def set_ramp(self, rows: np.ndarray | slice, accel: float, end_speed: float) -> None:
+        """Change the speed ramp of running bogies (their states and actuators carry on):
+        ``accel`` (m/s^2, negative ramps down) until ``end_speed`` (m/s)."""
+        check_speed(end_speed, "end_speed")
+        if not math.isfinite(accel):
+            raise ValueError(f"accel = {accel!r} m/s^2 is not allowed; allowed: a finite number")
+        self.motion[rows, M_ACCEL] = accel
+        self.motion[rows, M_END_SPEED] = end_speed
+
     def track_displacement(self) -> np.ndarray:
         """Track alignment under each wheelset now, (N, 2) m."""
         return self.track.under_wheelsets(self.distance, self.model.params.L1)[:, list(ALIGNMENT_SAMPLES)]

@@ -166,6 +166,67 @@ def test_a_destabilising_controller_fails_lower_than_passive(passive_01):
     assert bad < passive - 10, (bad, passive)
 
 
+# ---- ramp-down ---------------------------------------------------------------------------------------
+def test_hunting_end_takes_the_first_pass_after_the_hunting_the_ramp_started_with():
+    top = np.array([600.0, 598.0, 596.0, 594.0, 592.0, 590.0])
+    failing = np.array([[1, 1, 0, 0, 1, 0],   # hunting stops at 596; the later failure is reported, not used
+                        [0, 0, 1, 1, 0, 0],   # stopped during the hold, fails lower: at least the ceiling
+                        [1, 1, 1, 1, 1, 1],   # never stops: at most the floor
+                        [1, 0, 0, 0, 0, 0]], dtype=bool)  # fmt: skip
+    value, bound, first_pass = sp.hunting_end(failing, top, 40.0, 600.0)
+    assert list(value) == [596.0, 600.0, 40.0, 598.0]
+    assert list(bound) == ["bisected", "at_least", "at_most", "bisected"]
+    assert list(first_pass) == [2, 0, 6, 1]
+
+
+def test_ramp_down_bad_input_names_the_field():
+    from bogie_env.envs.task import HuntingTask
+
+    task = HuntingTask(2, make_config({"speed": {"start_kmh": 100.0, "end_kmh": 300.0}}, variant="v1"))
+    task.seed_rows(np.arange(2), [0, 1])
+    task.reset_rows(np.arange(2), {"start_kmh": 300.0, "end_kmh": 300.0, "accel": 0.0})
+    with pytest.raises(ConfigError, match="end_kmh = 50"):
+        task.ramp_rows(np.arange(2), -0.5, 50.0)
+    with pytest.raises(ConfigError, match="accel = nan"):
+        task.ramp_rows(np.arange(2), float("nan"), 150.0)
+    task.ramp_rows(np.arange(2), -1.0, 150.0)
+    for _ in range(100):
+        task.step(np.zeros((2, task.action_dim)))
+    np.testing.assert_allclose(task.speed_kmh, 300.0 - 3.6, atol=1e-9)  # 1 s at 1 m/s^2
+    with pytest.raises(ConfigError, match="ramp_down_decel = 0"):
+        sp.Settings(ramp_down_decel=0.0).check()
+
+
+RAMP = dict(floor_kmh=80.0, ceiling_kmh=250.0, conicities=(0.1,), duration_s=12.0, transient_s=4.0, ramp_down_decel=0.5,
+            ramp_down_stride_kmh=2.0)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def passive_ramp_down() -> dict:
+    return sp.evaluate_policy_v2("passive", make_config(variant="v1"), tiny(**RAMP), parts=("ramp_down",))["ramp_down"]
+
+
+def test_ramp_down_passive_stops_hunting_near_the_linear_critical_speed(passive_ramp_down):
+    """Passive: on new wheels 250 km/h is below the critical speed (358 km/h), so the 12 mm start
+    decays before the ramp begins (at least the ceiling); at conicity 0.1 the hunting started at
+    250 km/h stops near the linear critical speed (141.5 km/h; measured 142.1 and 146.1). Taking
+    a window's lowest speed instead of its highest (14 km/h lower) fails this."""
+    by = passive_ramp_down["by_conicity"]
+    assert by["0.025"]["kmh"] == 250.0 and by["0.025"]["bound"].startswith("at least")
+    linear = critical_speed(BogieModel(load_params(None).replace(lam=0.1))).speed_kmh
+    assert by["0.1"]["bound"].startswith("windows")
+    assert linear - 6 <= by["0.1"]["kmh"] <= linear + 8, (by["0.1"], linear)
+    assert by["0.1"]["spread_kmh"]["max"] <= linear + 8
+
+
+def test_ramp_down_switches_the_controller_on(passive_ramp_down):
+    """Negative skyhook damping keeps the bogie hunting to a lower speed than passive."""
+    bad = sp.evaluate_policy_v2(lambda cfg: SkyhookController(cfg, c_lateral=-6e4, c_yaw=-6e5, c_wheelset=-6e5),
+                                make_config(variant="v1"), tiny(**RAMP), parts=("ramp_down",),
+                                label="anti-skyhook")["ramp_down"]["by_conicity"]["0.1"]["kmh"]  # fmt: skip
+    assert bad < passive_ramp_down["by_conicity"]["0.1"]["kmh"] - 10
+
+
 def test_json_keys():
     v1 = make_config(variant="v1")
     settings = tiny(seeds=1, grid_ratio=2.0, floor_kmh=60.0, ceiling_kmh=480.0, tol_kmh=60.0, duration_s=6.0, transient_s=2.0,

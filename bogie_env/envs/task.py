@@ -621,6 +621,20 @@ class HuntingTask:
                        self.sensor_rng, self.sensor_table, True, OBS_BOUND)  # fmt: skip
         self._add_noise(rows)
 
+    def ramp_rows(self, rows: np.ndarray, accel: float, end_kmh: float) -> None:
+        """Change the speed ramp of running rows, e.g. ramp down (``accel`` < 0, m/s^2) to
+        ``end_kmh``: the ramp-down method of the closed-loop nonlinear critical speed. The env's
+        episodes only ramp up (``reset_rows``); this is for analyses."""
+        if self.on_routes:
+            raise ConfigError("ramp_rows is not allowed on routes: an episode runs its route at constant speed")
+        if not (math.isfinite(accel) and abs(accel) <= MAX_ACCEL):
+            raise ConfigError(f"ramp_rows accel = {accel!r} m/s^2 is not allowed; allowed: [-{MAX_ACCEL:g}, {MAX_ACCEL:g}]")
+        lo, hi = self.speed_limits()
+        if not lo * KMH - 1e-9 <= end_kmh <= hi * KMH + 1e-9:
+            raise ConfigError(f"ramp_rows end_kmh = {end_kmh!r} is not allowed; allowed: the config's speed range "
+                              f"[{lo * KMH:g}, {hi * KMH:g}] km/h (it sets the integration step)")  # fmt: skip
+        self.sim.set_ramp(rows, float(accel), float(end_kmh) / KMH)
+
     def _draw_slot(self, rng: np.random.Generator, options: Mapping[str, Any]):
         """The layout slot of a new route episode: the route (option 'route', else uniform over the
         configured routes) and its copy (option 'route_copy', else uniform)."""

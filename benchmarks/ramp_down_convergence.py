@@ -1,0 +1,64 @@
+"""Protocol v2's ``ramp_down`` part at several integration steps and ramp rates: how far its
+values move when the step or the deceleration is halved.
+
+    PYTHONPATH=$PWD:$PWD/.shim python benchmarks/ramp_down_convergence.py --policy passive --policy lqr \
+        [--n-sub 10,20,40] [--decel 0.25,0.125] [--conicities 0.025,0.05,0.1,0.2,0.3] [--seed 0] [--seeds 10]
+
+Every (step, deceleration) pair runs the part (``agents/stability_protocol.py``,
+:func:`ramp_down_part`) on seeds ``--seed`` to ``--seed`` + ``--seeds`` - 1 (the nominal column
+always runs beside the chosen conicities); v1's step is 10 substeps, the part's
+deceleration 0.25 m/s^2. Prints JSON: per policy and pair, each conicity's value (lowest seed)
+and the median over seeds; progress with the time left on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from bogie_env.envs.config import make_config
+from bogie_agents.stability_protocol import Settings, evaluate_policy_v2
+
+
+def floats(text: str) -> list[float]:
+    return [float(v) for v in text.split(",")]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--policy", action="append", default=None)
+    parser.add_argument("--n-sub", default="10,20", help="RK4 substeps per env step, comma-separated (v1: 10)")
+    parser.add_argument("--decel", default="0.25", help="ramp-down decelerations (m/s^2), comma-separated")
+    parser.add_argument("--conicities", default="0.025,0.05,0.1,0.2,0.3")
+    parser.add_argument("--seed", type=int, default=0, help="first seed")
+    parser.add_argument("--seeds", type=int, default=10)
+    args = parser.parse_args()
+    steps = [int(v) for v in args.n_sub.split(",")]
+    decels, conicities = floats(args.decel), tuple(floats(args.conicities))
+    if any(n < 1 for n in steps) or args.seeds < 1:
+        parser.error(f"--n-sub = {args.n_sub!r} and --seeds = {args.seeds} must be >= 1")
+    policies = args.policy or ["passive", "pretrained"]
+    pairs = [(n, d) for n in steps for d in decels]
+    total, done, t0 = len(policies) * len(pairs), 0, time.monotonic()
+    out: dict[str, dict] = {}
+    for policy in policies:
+        for n_sub, decel in pairs:
+            config = make_config({"integration": {"n_sub": n_sub}}, variant="v1")
+            settings = Settings(seed=args.seed, seeds=args.seeds, conicities=conicities, ramp_down_decel=decel, progress=False)
+            settings.check()
+            part = evaluate_policy_v2(policy, config, settings, ("ramp_down",))["ramp_down"]["by_conicity"]
+            out[f"{policy}, {n_sub} substeps, {decel:g} m/s^2"] = {
+                lam: {"kmh": e["kmh"], "median_kmh": e["spread_kmh"]["median"], "per_seed_kmh": e["per_seed_kmh"]}
+                for lam, e in part.items()
+            }  # fmt: skip
+            done += 1
+            elapsed = time.monotonic() - t0
+            print(f"[{done}/{total}: {policy}, {n_sub} substeps, {decel:g} m/s^2; {elapsed:.0f} s, "
+                  f"about {elapsed / done * (total - done):.0f} s left]", file=sys.stderr, flush=True)  # fmt: skip
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
