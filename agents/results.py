@@ -299,6 +299,9 @@ def v2_summary(result: dict) -> str:
     if "margins" in result:
         m = result["margins"]
         line += f"; gain margin {m.get('gain_margin')}, delay margin {m.get('delay_margin_s')} s"
+    if "ramp_down" in result:
+        line += "; hunting ends on the ramp-down at " + ", ".join(
+            f"{lam}: {v2_speed(e)}" for lam, e in result["ramp_down"]["by_conicity"].items())
     return line
 
 

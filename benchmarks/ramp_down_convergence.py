@@ -1,8 +1,8 @@
 """Protocol v2's ``ramp_down`` part at several integration steps and ramp rates: how far its
 values move when the step or the deceleration is halved.
 
-    PYTHONPATH=$PWD:$PWD/.shim python benchmarks/ramp_down_convergence.py --policy passive --policy lqr \
-        [--n-sub 10,20,40] [--decel 0.25,0.125] [--conicities 0.025,0.05,0.1,0.2,0.3] [--seed 0] [--seeds 10]
+    PYTHONPATH=$PWD:$PWD/.shim python benchmarks/ramp_down_convergence.py [--policy passive --policy pretrained] \
+        [--n-sub 10,20] [--decel 0.25] [--conicities 0.025,0.05,0.1,0.2,0.3] [--seed 0] [--seeds 10]
 
 Every (step, deceleration) pair runs the part (``agents/stability_protocol.py``,
 :func:`ramp_down_part`) on seeds ``--seed`` to ``--seed`` + ``--seeds`` - 1 (the nominal column
@@ -19,11 +19,15 @@ import sys
 import time
 
 from bogie_env.envs.config import make_config
+from bogie_env.params import ConfigError
 from bogie_agents.stability_protocol import Settings, evaluate_policy_v2
 
 
-def floats(text: str) -> list[float]:
-    return [float(v) for v in text.split(",")]
+def floats(parser: argparse.ArgumentParser, name: str, text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        parser.error(f"{name} = {text!r}: allowed: comma-separated numbers")
 
 
 def main() -> None:
@@ -35,10 +39,15 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="first seed")
     parser.add_argument("--seeds", type=int, default=10)
     args = parser.parse_args()
-    steps = [int(v) for v in args.n_sub.split(",")]
-    decels, conicities = floats(args.decel), tuple(floats(args.conicities))
+    steps = [int(v) for v in floats(parser, "--n-sub", args.n_sub)]
+    decels, conicities = floats(parser, "--decel", args.decel), tuple(floats(parser, "--conicities", args.conicities))
     if any(n < 1 for n in steps) or args.seeds < 1:
         parser.error(f"--n-sub = {args.n_sub!r} and --seeds = {args.seeds} must be >= 1")
+    for decel in decels:  # every setting is checked before the first run
+        try:
+            Settings(seed=args.seed, seeds=args.seeds, conicities=conicities, ramp_down_decel=decel).check()
+        except ConfigError as error:
+            parser.error(f"--decel: {error}")
     policies = args.policy or ["passive", "pretrained"]
     pairs = [(n, d) for n in steps for d in decels]
     total, done, t0 = len(policies) * len(pairs), 0, time.monotonic()
@@ -47,10 +56,10 @@ def main() -> None:
         for n_sub, decel in pairs:
             config = make_config({"integration": {"n_sub": n_sub}}, variant="v1")
             settings = Settings(seed=args.seed, seeds=args.seeds, conicities=conicities, ramp_down_decel=decel, progress=False)
-            settings.check()
             part = evaluate_policy_v2(policy, config, settings, ("ramp_down",))["ramp_down"]["by_conicity"]
             out[f"{policy}, {n_sub} substeps, {decel:g} m/s^2"] = {
-                lam: {"kmh": e["kmh"], "median_kmh": e["spread_kmh"]["median"], "per_seed_kmh": e["per_seed_kmh"]}
+                lam: {"kmh": e["kmh"], "bound": e["bound"], "median_kmh": e["spread_kmh"]["median"],
+                      "per_seed_kmh": e["per_seed_kmh"]}
                 for lam, e in part.items()
             }  # fmt: skip
             done += 1

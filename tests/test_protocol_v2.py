@@ -173,10 +173,10 @@ def test_hunting_end_takes_the_first_pass_after_the_hunting_the_ramp_started_wit
                         [0, 0, 1, 1, 0, 0],   # stopped during the hold, fails lower: at least the ceiling
                         [1, 1, 1, 1, 1, 1],   # never stops: at most the floor
                         [1, 0, 0, 0, 0, 0]], dtype=bool)  # fmt: skip
-    value, bound, first_pass = sp.hunting_end(failing, top, 40.0, 600.0)
-    assert list(value) == [596.0, 600.0, 40.0, 598.0]
-    assert list(bound) == ["bisected", "at_least", "at_most", "bisected"]
-    assert list(first_pass) == [2, 0, 6, 1]
+    end = sp.hunting_end(failing, top, 40.0, 600.0)
+    assert list(end.kmh) == [596.0, 600.0, 40.0, 598.0]
+    assert list(end.bound) == ["ended", "at_least", "at_most", "ended"]
+    assert list(end.first_pass) == [2, 0, 6, 1]
 
 
 def test_ramp_down_bad_input_names_the_field():
@@ -193,8 +193,12 @@ def test_ramp_down_bad_input_names_the_field():
     for _ in range(100):
         task.step(np.zeros((2, task.action_dim)))
     np.testing.assert_allclose(task.speed_kmh, 300.0 - 3.6, atol=1e-9)  # 1 s at 1 m/s^2
-    with pytest.raises(ConfigError, match="ramp_down_decel = 0"):
+    with pytest.raises(ConfigError, match="ramp down .* must end below"):
+        task.ramp_rows(np.arange(2), -0.5, 299.0)  # the rows are at 296.4 km/h now
+    with pytest.raises(ConfigError, match=r"ramp_down_decel = 0\.0 is not allowed; allowed: a number in \[0\.05, 2\]"):
         sp.Settings(ramp_down_decel=0.0).check()
+    with pytest.raises(ConfigError, match="ramp_down_stride_kmh = nan"):
+        sp.Settings(ramp_down_stride_kmh=float("nan")).check()
 
 
 RAMP = dict(floor_kmh=80.0, ceiling_kmh=250.0, conicities=(0.1,), duration_s=12.0, transient_s=4.0, ramp_down_decel=0.5,
@@ -212,11 +216,51 @@ def test_ramp_down_passive_stops_hunting_near_the_linear_critical_speed(passive_
     250 km/h stops near the linear critical speed (141.5 km/h; measured 142.1 and 146.1). Taking
     a window's lowest speed instead of its highest (14 km/h lower) fails this."""
     by = passive_ramp_down["by_conicity"]
-    assert by["0.025"]["kmh"] == 250.0 and by["0.025"]["bound"].startswith("at least")
+    assert by["0.025"]["kmh"] == 250.0 and by["0.025"]["bound"].startswith("at least: no hunting at the switch-on")
+    assert by["0.025"]["not_hunting_at_switch_on"] == [0, 1] and by["0.1"]["not_hunting_at_switch_on"] == []
     linear = critical_speed(BogieModel(load_params(None).replace(lam=0.1))).speed_kmh
-    assert by["0.1"]["bound"].startswith("windows")
+    assert by["0.1"]["bound"].startswith("hunting ended")
     assert linear - 6 <= by["0.1"]["kmh"] <= linear + 8, (by["0.1"], linear)
     assert by["0.1"]["spread_kmh"]["max"] <= linear + 8
+
+
+class ProbePolicy:
+    """Zero force; counts its actions and records when it was reset (in actions done), and
+    answers NaN from its ``nan_from``-th action on. ``made`` collects every instance."""
+
+    observation_type = "sensors"
+
+    def __init__(self, made: list, nan_from: int | None = None) -> None:
+        self.nan_from, self.calls, self.resets = nan_from, 0, []
+        made.append(self)
+
+    def reset(self, n: int) -> None:
+        self.resets.append(self.calls)
+
+    def act(self, obs):
+        self.calls += 1
+        out = np.zeros((obs.shape[0], 4))
+        return out * np.nan if self.nan_from is not None and self.calls >= self.nan_from else out
+
+
+def test_ramp_down_acts_only_after_the_passive_onset_and_a_reset(passive_ramp_down):
+    """Each conicity's controller is reset at the switch-on and acts from then on only (the
+    4 s hold, the ramp from 250 to 80 km/h at 0.5 m/s^2 and one 8 s window at the floor), never
+    during the passive onset; a zero-force controller gives passive's values, and one that
+    answers NaN only after the hunting has ended (below 95 km/h) does not lower them."""
+    made: list = []
+    zero = sp.evaluate_policy_v2(lambda cfg: ProbePolicy(made), make_config(variant="v1"), tiny(**RAMP),
+                                 parts=("ramp_down",), label="zero")["ramp_down"]  # fmt: skip
+    used = [p for p in made if p.calls]
+    acts = 400 + math.ceil((250.0 - 80.0) / 3.6 / 0.5 / DT) + 800
+    assert used and all(p.calls == acts for p in used), [p.calls for p in used]  # one per told conicity
+    assert all(p.resets == [0, 0] for p in used)  # built with the task, then switched on
+    assert zero["by_conicity"] == passive_ramp_down["by_conicity"]
+    to_95 = 400 + int(round((250.0 - 95.0) / 3.6 / 0.5 / DT))
+    late = sp.evaluate_policy_v2(lambda cfg: ProbePolicy([], nan_from=to_95), make_config(variant="v1"), tiny(**RAMP),
+                                 parts=("ramp_down",), label="late NaN")["ramp_down"]["by_conicity"]["0.1"]  # fmt: skip
+    assert late["per_seed_kmh"] == passive_ramp_down["by_conicity"]["0.1"]["per_seed_kmh"]
+    assert late["fails_below_kmh"]  # the windows with the NaN fail, below the end of the hunting
 
 
 def test_ramp_down_switches_the_controller_on(passive_ramp_down):

@@ -633,6 +633,12 @@ class HuntingTask:
         if not lo * KMH - 1e-9 <= end_kmh <= hi * KMH + 1e-9:
             raise ConfigError(f"ramp_rows end_kmh = {end_kmh!r} is not allowed; allowed: the config's speed range "
                               f"[{lo * KMH:g}, {hi * KMH:g}] km/h (it sets the integration step)")  # fmt: skip
+        now = self.sim.motion[rows, M_SPEED] * KMH
+        wrong = now < end_kmh - 1e-9 if accel < 0 else (now > end_kmh + 1e-9 if accel > 0 else np.zeros(now.shape, bool))
+        if np.any(wrong):
+            raise ConfigError(f"ramp_rows end_kmh = {end_kmh!r} is not allowed with accel = {accel!r}: the rows run at "
+                              f"{float(np.atleast_1d(now)[np.atleast_1d(wrong)][0]):g} km/h, and a ramp down (accel < 0) "
+                              "must end below that speed, a ramp up above it")  # fmt: skip
         self.sim.set_ramp(rows, float(accel), float(end_kmh) / KMH)
 
     def _draw_slot(self, rng: np.random.Generator, options: Mapping[str, Any]):
