@@ -293,15 +293,16 @@ def cmd_margins(args: argparse.Namespace) -> int:
 
 
 @command("results", "evaluate several controllers; write results.json and table.md (v1 env: protocol v2; v0: plots too)")
-@argument("--resume", action="store_true", help="keep controllers already in OUT/results.json (run at the same --n-sub)")
+@argument("--resume", action="store_true",
+          help="keep controllers already in OUT/results.json (run at the same --n-sub); v1: run only the parts they lack")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--n-sub", type=bounded(int, 1, 1000), default=None,
           help="RK4 substeps per env step for every run (default: the env's own step; v1: 10); written into "
                "results.json (integration_n_sub) and below the table")
 @argument("--env-config", default=None)
 @argument("--env", default="Bogie/Hunting-v1",
-          help="env id (its version picks the protocol: -v1 ids protocol v2 with critical, cost and margins; "
-               "-v0 ids protocol v1 with the ramp plots)")
+          help="env id (its version picks the protocol: -v1 ids protocol v2 with critical, cost, margins, curving and "
+               "ramp_down; -v0 ids protocol v1 with the ramp plots)")
 @argument("--out", required=True, help="output folder, e.g. docs/results")
 @policy_options
 @backend_options

@@ -229,6 +229,14 @@ def _at_ceiling(entry: dict | None) -> bool:
     return bool(entry) and entry["bound"].startswith("at least")
 
 
+#: The conicities of the ramp-down part that the table shows (results.json has all of them).
+RAMP_DOWN_COLUMNS = ("0.025", "0.1")
+#: Protocol v2's parts in ``bogie results``, and the key of a result that says a part has run
+#: (``--resume`` runs the parts a kept row lacks).
+V2_RESULTS_PARTS = ("critical", "cost", "margins", "curving", "ramp_down")
+V2_PART_KEYS = {"critical": "search"}
+
+
 def v2_columns(result: dict) -> dict[str, dict | None]:
     """The critical-speed columns of one controller's v2 result, in the table's order."""
     cols: dict[str, dict | None] = {"nominal": result.get("nominal"), "worst case": result.get("worst_case")}
@@ -244,6 +252,10 @@ def v2_columns(result: dict) -> dict[str, dict | None]:
     for key, entry in result.items():
         if key.startswith("delay_") and isinstance(entry, dict) and "kmh" in entry:
             cols[f"{key[6:]} delay"] = entry
+    ramp_down = (result.get("ramp_down") or {}).get("by_conicity", {})
+    for lam in RAMP_DOWN_COLUMNS:
+        if lam in ramp_down:
+            cols[f"hunting ends λ {lam}"] = ramp_down[lam]
     return cols
 
 
@@ -274,7 +286,12 @@ def v2_table(results: list[dict], n_sub: int | None = None) -> str:
         notes.append(f"Search {search['floor_kmh']:g}-{search['ceiling_kmh']:g} km/h ('≥' at the ceiling, '≤' at the floor), "
                      f"{search['seeds']} seeds, bisection to {search['tol_kmh']:g} km/h (docs/results.md, protocol v2)."
                      + ("" if n_sub is None else f" RK4 at {n_sub} substeps per env step (--n-sub)."))  # fmt: skip
-    notes.append("† a seed also fails at a grid speed below this value (fails_below_kmh in results.json).")
+    notes.append("† a seed also fails at a grid speed below this value (hunting ends: a window below it fails again; "
+                 "fails_below_kmh in results.json).")  # fmt: skip
+    if any(n.startswith("hunting ends") for n in names):
+        notes.append("Hunting ends λ: the speed where hunting, fully developed at the ceiling, stops once the controller is "
+                     "switched on and the speed ramps down (the part ramp_down, lowest of the seeds; docs/results.md, "
+                     "'Recovery from hunting'; every conicity in results.json).")  # fmt: skip
     if dropped:
         notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
     curving = [{**r["curving"], "policy": r["policy"]} for r in results if r.get("curving")]
@@ -306,10 +323,11 @@ def v2_summary(result: dict) -> str:
 
 
 def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
-           parts: tuple[str, ...] = ("critical", "cost", "margins", "curving"), trusted: bool = False, backend: str = "local",
+           parts: tuple[str, ...] = V2_RESULTS_PARTS, trusted: bool = False, backend: str = "local",
            address: str | None = None, workers: int | None = None, settings=None) -> dict:  # fmt: skip
     """Protocol v2 for ``policies`` into ``out``: ``results.json`` (rewritten atomically after
-    each controller; ``resume`` keeps those already in it) and ``table.md`` (:func:`v2_table`)."""
+    each controller; ``resume`` keeps those already in it and runs only the ``parts`` they lack)
+    and ``table.md`` (:func:`v2_table`)."""
     from .stability_protocol import Settings, evaluate_policy_v2
 
     json_path, done = _results_folder(out, resume)
@@ -326,15 +344,19 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
             load_policy(spec, env_config, trusted)
         distributed = dict(zip(todo, evaluate_many_v2(todo, env_config, settings, parts, address, workers,
                                                       store_dir=out / "chunks", trusted=trusted)))  # fmt: skip
-    results = []
-    for spec in policies:
+    rows = dict(done)  # every row known so far is in each write: a crash loses no finished row
+    for spec in dict.fromkeys(policies):
         if spec in done:
-            results.append(done[spec])
-            continue
-        result = distributed.get(spec) or evaluate_policy_v2(spec, env_config, settings, parts, trusted=trusted)
-        result["policy"] = spec
-        results.append(result)
-        write_text_atomic(json_path, _v2_payload(results, n_sub))
+            missing = tuple(p for p in parts if V2_PART_KEYS.get(p, p) not in done[spec])
+            if not missing:
+                continue
+            rows[spec] = {**done[spec], **evaluate_policy_v2(spec, env_config, settings, missing, trusted=trusted),
+                          "policy": spec}  # fmt: skip
+        else:
+            rows[spec] = distributed.get(spec) or evaluate_policy_v2(spec, env_config, settings, parts, trusted=trusted)
+            rows[spec]["policy"] = spec
+        write_text_atomic(json_path, _v2_payload(list(rows.values()), n_sub))
+    results = [rows[spec] for spec in dict.fromkeys(policies)]
     write_text_atomic(json_path, _v2_payload(results, n_sub))
     write_text_atomic(out / "table.md", v2_table(results, n_sub))
     return {"policies": results}

@@ -400,6 +400,36 @@ def test_results_v2_writes_json_and_table_and_resumes(tmp_path, monkeypatch):
     assert again == json.loads(json.dumps(payload))
 
 
+def test_results_v2_resume_runs_only_the_missing_parts_and_a_crash_keeps_finished_rows(tmp_path, monkeypatch):
+    import bogie_agents.results as results
+
+    def fake(spec, env_config, settings, parts, trusted=False):
+        calls.append((spec, tuple(parts)))
+        if spec == "lqr":
+            raise RuntimeError("crash")
+        out = {"policy": spec}
+        if "critical" in parts:
+            out["search"] = {}
+            out["nominal"] = {"kmh": 300.0, "bound": "bisected", "spread_kmh": {"min": 300.0, "median": 301.0, "max": 302.0}}
+        if "ramp_down" in parts:
+            out["ramp_down"] = {"by_conicity": {"0.025": {"kmh": 290.0, "bound": "hunting ended",
+                                                          "spread_kmh": {"min": 290.0, "median": 291.0, "max": 292.0}}}}
+        return out
+
+    calls: list = []
+    monkeypatch.setattr(sp, "evaluate_policy_v2", fake)
+    v1 = make_config(variant="v1")
+    results.run_v2(["passive", "skyhook"], v1, tmp_path, parts=("critical",))
+    with pytest.raises(RuntimeError, match="crash"):
+        results.run_v2(["passive", "lqr", "skyhook"], v1, tmp_path, resume=True, parts=("critical", "ramp_down"))
+    assert calls[2:] == [("passive", ("ramp_down",)), ("lqr", ("critical", "ramp_down"))]
+    kept = {r["policy"]: r for r in json.loads((tmp_path / "results.json").read_text())["policies"]}
+    assert set(kept) == {"passive", "skyhook"} and "ramp_down" in kept["passive"] and "ramp_down" not in kept["skyhook"]
+    assert kept["passive"]["nominal"]["kmh"] == 300.0
+    table = results.v2_table(list(kept.values()))
+    assert "hunting ends λ 0.025" in table and "290 (291-292)" in table
+
+
 def test_results_v2_records_the_step_and_resumes_only_at_it(tmp_path, capsys):
     import bogie_agents.results as results
     from bogie_agents.cli import main as cli_main
