@@ -221,7 +221,8 @@ def v2_speed(entry: dict | None) -> str:
     if entry["bound"].startswith("at most"):
         return f"≤ {value:g}"
     spread = entry.get("spread_kmh", {})
-    mark = " †" if entry.get("fails_below_kmh") else ""
+    below = [v for speeds in (entry.get("fails_below_kmh") or {}).values() for v in speeds]
+    mark = " †" if any(v < value for v in below) else ""  # a seed fails below the column's value
     return (f"{value:.0f} ({spread.get('median', value):.0f}-{spread.get('max', value):.0f})" if spread else f"{value:.0f}") + mark
 
 
@@ -332,45 +333,61 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
 
     json_path, done = _results_folder(out, resume)
     n_sub = env_config["integration"]["n_sub"]
-    if done:
-        _check_same_step(json_path, n_sub)
     settings = settings or Settings(seed=seed)
-    todo = [spec for spec in dict.fromkeys(policies) if spec not in done]
+    if done:
+        _check_same_run(json_path, n_sub, settings.seed)
+    specs = list(dict.fromkeys(policies))
+    work = {spec: tuple(p for p in parts if spec not in done or V2_PART_KEYS.get(p, p) not in done[spec]) for spec in specs}
+    work = {spec: todo for spec, todo in work.items() if todo}
     distributed: dict[str, dict] = {}
-    if backend != "local" and todo:
+    if backend != "local" and work:
         from .evaluation_tasks import evaluate_many_v2
 
-        for spec in todo:
+        for spec in work:
             load_policy(spec, env_config, trusted)
-        distributed = dict(zip(todo, evaluate_many_v2(todo, env_config, settings, parts, address, workers,
-                                                      store_dir=out / "chunks", trusted=trusted)))  # fmt: skip
+        groups: dict[tuple[str, ...], list[str]] = {}
+        for spec, todo in work.items():
+            groups.setdefault(todo, []).append(spec)
+        for todo, group in groups.items():  # one Ray task per (controller, part) of each group
+            distributed.update(zip(group, evaluate_many_v2(group, env_config, settings, todo, address, workers,
+                                                           store_dir=out / "chunks", trusted=trusted)))  # fmt: skip
     rows = dict(done)  # every row known so far is in each write: a crash loses no finished row
-    for spec in dict.fromkeys(policies):
-        if spec in done:
-            missing = tuple(p for p in parts if V2_PART_KEYS.get(p, p) not in done[spec])
-            if not missing:
-                continue
-            rows[spec] = {**done[spec], **evaluate_policy_v2(spec, env_config, settings, missing, trusted=trusted),
-                          "policy": spec}  # fmt: skip
-        else:
-            rows[spec] = distributed.get(spec) or evaluate_policy_v2(spec, env_config, settings, parts, trusted=trusted)
-            rows[spec]["policy"] = spec
-        write_text_atomic(json_path, _v2_payload(list(rows.values()), n_sub))
-    results = [rows[spec] for spec in dict.fromkeys(policies)]
-    write_text_atomic(json_path, _v2_payload(results, n_sub))
+    for spec, todo in work.items():
+        result = distributed.get(spec) or evaluate_policy_v2(spec, env_config, settings, todo, trusted=trusted)
+        _check_parts_ran(spec, todo, result)
+        rows[spec] = {**rows.get(spec, {}), **result, "policy": spec}
+        write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed))
+    write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed))
+    results = [rows[spec] for spec in specs]
     write_text_atomic(out / "table.md", v2_table(results, n_sub))
     return {"policies": results}
 
 
-def _v2_payload(results: list[dict], n_sub: int | None) -> str:
-    """results.json's text; ``integration_n_sub`` only when a step was set (``--n-sub``)."""
-    head = {"protocol_version": 2} | ({} if n_sub is None else {"integration_n_sub": n_sub})
+def _ordered(rows: dict[str, dict], specs: list[str]) -> list[dict]:
+    """The rows of ``specs`` in their order, then every other kept row (a run never drops one)."""
+    return [rows[s] for s in specs if s in rows] + [r for s, r in rows.items() if s not in specs]
+
+
+def _check_parts_ran(spec: str, parts: tuple[str, ...], result: dict) -> None:
+    """Each part must leave the key that --resume reads as 'this part has run' (V2_PART_KEYS)."""
+    for part in parts:
+        if V2_PART_KEYS.get(part, part) not in result:
+            raise RuntimeError(f"protocol v2 part {part!r} gave {spec!r} no {V2_PART_KEYS.get(part, part)!r} key; "
+                               "results.V2_PART_KEYS names the key each part leaves")  # fmt: skip
+
+
+def _v2_payload(results: list[dict], n_sub: int | None, seed: int = 0) -> str:
+    """results.json's text; ``integration_n_sub`` only when a step was set (``--n-sub``), ``seed``
+    only when it is not the protocol's 0 (so the default file is unchanged)."""
+    head = {"protocol_version": 2} | ({} if n_sub is None else {"integration_n_sub": n_sub}) | ({"seed": seed} if seed else {})
     return json.dumps(head | {"policies": results}, indent=2, default=float)
 
 
-def _check_same_step(json_path: Path, n_sub: int | None) -> None:
-    """--resume keeps rows only when they ran at this run's integration step."""
-    before = json.loads(json_path.read_text()).get("integration_n_sub")
-    if before != n_sub:
-        raise ConfigError(f"--resume: {str(json_path)!r} holds rows run with integration_n_sub = {before}; this run has "
-                          f"{n_sub}: rows at different steps do not belong in one table; use another --out")  # fmt: skip
+def _check_same_run(json_path: Path, n_sub: int | None, seed: int) -> None:
+    """--resume keeps rows (and adds parts to them) only when they ran at this run's integration
+    step and seeds."""
+    before = json.loads(json_path.read_text())
+    for key, now, default in (("integration_n_sub", n_sub, None), ("seed", seed, 0)):
+        if before.get(key, default) != now:
+            raise ConfigError(f"--resume: {str(json_path)!r} holds rows run with {key} = {before.get(key, default)}; this "
+                              f"run has {now}: rows of different runs do not belong in one table; use another --out")  # fmt: skip

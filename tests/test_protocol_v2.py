@@ -428,6 +428,20 @@ def test_results_v2_resume_runs_only_the_missing_parts_and_a_crash_keeps_finishe
     assert kept["passive"]["nominal"]["kmh"] == 300.0
     table = results.v2_table(list(kept.values()))
     assert "hunting ends λ 0.025" in table and "290 (291-292)" in table
+    # a successful run of one controller keeps the others, its own row first
+    results.run_v2(["skyhook"], v1, tmp_path, resume=True, parts=("critical", "ramp_down"))
+    order = [r["policy"] for r in json.loads((tmp_path / "results.json").read_text())["policies"]]
+    assert order == ["skyhook", "passive"] and calls[-1] == ("skyhook", ("ramp_down",))
+    with pytest.raises(ConfigError, match="seed = 0; this run has 100"):
+        results.run_v2(["skyhook"], v1, tmp_path, resume=True, seed=100, parts=("critical",))
+
+
+def test_the_table_marks_a_column_only_when_a_seed_fails_below_its_value():
+    import bogie_agents.results as results
+
+    entry = {"kmh": 372.0, "bound": "bisection to 2 km/h", "spread_kmh": {"min": 372.0, "median": 420.0, "max": 600.0}}
+    assert results.v2_speed({**entry, "fails_below_kmh": {"1": [444.1]}}) == "372 (420-600)"  # below seed 1's own value only
+    assert results.v2_speed({**entry, "fails_below_kmh": {"1": [301.2, 444.1]}}) == "372 (420-600) †"
 
 
 def test_results_v2_records_the_step_and_resumes_only_at_it(tmp_path, capsys):
