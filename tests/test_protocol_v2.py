@@ -436,6 +436,23 @@ def test_results_v2_resume_runs_only_the_missing_parts_and_a_crash_keeps_finishe
         results.run_v2(["skyhook"], v1, tmp_path, resume=True, seed=100, parts=("critical",))
 
 
+def test_results_v2_ray_backend_gets_the_missing_parts_of_kept_rows(tmp_path, monkeypatch):
+    import bogie_agents.evaluation_tasks as tasks
+    import bogie_agents.results as results
+
+    def fake_many(specs, env_config, settings, parts, address=None, workers=None, store_dir=None, trusted=False):
+        groups.append((list(specs), tuple(parts)))
+        return [{"policy": spec, **{results.V2_PART_KEYS.get(p, p): {} for p in parts}} for spec in specs]
+
+    groups: list = []
+    monkeypatch.setattr(tasks, "evaluate_many_v2", fake_many)
+    monkeypatch.setattr(sp, "evaluate_policy_v2", lambda *a, **k: pytest.fail("ran locally"))
+    v1 = make_config(variant="v1")
+    (tmp_path / "results.json").write_text(json.dumps({"protocol_version": 2, "policies": [{"policy": "passive", "search": {}}]}))
+    results.run_v2(["passive", "skyhook"], v1, tmp_path, resume=True, parts=("critical", "ramp_down"), backend="ray")
+    assert groups == [(["passive"], ("ramp_down",)), (["skyhook"], ("critical", "ramp_down"))]
+
+
 def test_the_table_marks_a_column_only_when_a_seed_fails_below_its_value():
     import bogie_agents.results as results
 
