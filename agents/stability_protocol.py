@@ -444,6 +444,21 @@ def protocol_config(env_config: dict, settings: Settings, observation_type: str,
     return make_config(merge_config(env_config, update))
 
 
+def step_guarded(task: HuntingTask, actions: Any) -> np.ndarray:
+    """Step ``task`` with ``actions``, a row's non-finite action replaced by zero force; returns
+    the rows that blew up in this step (a non-finite action or state, or the task's flag)."""
+    actions = np.array(actions, dtype=float)
+    bad = ~np.all(np.isfinite(actions), axis=1)
+    actions[bad] = 0.0
+    task.step(actions)
+    return bad | task.blowup | ~np.all(np.isfinite(task.states), axis=1)
+
+
+def flange_touching(task: HuntingTask) -> np.ndarray:
+    """Rows whose wheelset (either) is displaced relative to the rail by the flange clearance."""
+    return np.any(np.abs(task.relative_lateral_m) >= task.flange_clearance[:, None], axis=1)
+
+
 class Runner:
     """Runs batches of (case, speed) rows for one controller."""
 
@@ -487,19 +502,12 @@ class Runner:
         buffers = {loop: np.zeros((idx.size, 3)) for loop, (idx, _, _) in loops.items()}
         for k in range(steps):
             for loop, (idx, task, policy) in loops.items():
-                actions = policy.act(task.obs)
-                bad = ~np.all(np.isfinite(actions), axis=1)
-                if bad.any():
-                    blowup[idx[bad]] = True
-                    actions[bad] = 0.0
-                task.step(actions)
-                blowup[idx] |= task.blowup | ~np.all(np.isfinite(task.states), axis=1)
+                blowup[idx] |= step_guarded(task, policy.act(task.obs))
                 if k >= first:
                     running_signals_rows(task.sim.rows, buffers[loop])
                     history[idx, :, k - first] = buffers[loop]
-                    relative = task.relative_lateral_m
-                    contact[idx] += np.any(np.abs(relative) >= task.flange_clearance[:, None], axis=1)
-                    offset[idx] += relative / task.flange_clearance[:, None]
+                    contact[idx] += flange_touching(task)
+                    offset[idx] += task.relative_lateral_m / task.flange_clearance[:, None]
             if k % 100 == 99:
                 done = self.row_steps_done + n * (k + 1)
                 self.progress.report(f"{what}: {k + 1}/{steps} steps of {n} rows", done,
@@ -759,12 +767,7 @@ def cost_part(ctx: PartContext) -> dict[str, Any]:
         buffer = np.zeros((n, 3))
         previous = task.actuator_force.copy()
         for k in range(steps):
-            actions = np.asarray(policy.act(task.obs), dtype=float)
-            bad = ~np.all(np.isfinite(actions), axis=1)
-            blowup |= bad
-            actions[bad] = 0.0
-            task.step(actions)
-            blowup |= task.blowup
+            blowup |= step_guarded(task, policy.act(task.obs))
             f = task.actuator_force
             if k >= first:
                 running_signals_rows(task.sim.rows, buffer)
@@ -772,7 +775,7 @@ def cost_part(ctx: PartContext) -> dict[str, Any]:
                 rate_sq += ((f - previous) / dt) ** 2
                 power += task.actuator_power
                 accel_sq += buffer[:, 2] ** 2
-                contact += np.any(np.abs(task.relative_lateral_m) >= task.flange_clearance[:, None], axis=1)
+                contact += flange_touching(task)
             previous[:] = f
             ctx.progress.report(f"cost at conicity {lam:g}: {k + 1}/{steps} steps", k + 1, steps - k - 1)
         limits = task.actuator_limits
@@ -887,11 +890,8 @@ def ramp_down_part(ctx: PartContext) -> dict[str, Any]:
             policy.reset(n)
         if k == onset + hold:
             task.ramp_rows(np.arange(n), -s.ramp_down_decel, s.floor_kmh)
-        actions = zero if k < onset else policy.act(task.obs)
-        bad = ~np.all(np.isfinite(actions), axis=1)
-        task.step(np.where(bad[:, None], 0.0, actions))
-        bad |= task.blowup | ~np.all(np.isfinite(task.states), axis=1)
-        touching = np.any(np.abs(task.relative_lateral_m) >= task.flange_clearance[:, None], axis=1)
+        bad = step_guarded(task, zero if k < onset else policy.act(task.obs))
+        touching = flange_touching(task)
         j = k - onset - hold
         if j == ramp // 2:
             midway = task.speed_kmh.copy()
