@@ -26,17 +26,7 @@ import numpy as np
 from bogie_env.envs.config import make_config
 from bogie_agents.stability_protocol import (NOMINAL_OPTIONS, Case, PartContext, Progress, Runner, Settings,
                                              factory_for)  # fmt: skip
-
-
-def parse_speeds(parser: argparse.ArgumentParser, text: str) -> list[float]:
-    """``a:b:step`` (inclusive) or a comma list, km/h."""
-    try:
-        if ":" in text:
-            a, b, step = (float(v) for v in text.split(":"))
-            return [float(v) for v in np.arange(a, b + 1e-9, step)]
-        return [float(v) for v in text.split(",")]
-    except ValueError:
-        parser.error(f"--speeds = {text!r}: allowed: a:b:step or a comma list of km/h")
+from lambda_low_speed_diagnosis import parse_speeds  # this folder: the script's own directory is on sys.path
 
 
 def main() -> None:
@@ -48,7 +38,10 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=40)
     args = parser.parse_args()
     steps = [int(v) for v in args.n_sub.split(",")]
-    speeds = parse_speeds(parser, args.speeds)
+    try:
+        speeds = parse_speeds(args.speeds)
+    except ValueError:
+        parser.error(f"--speeds = {args.speeds!r}: allowed: a:b:step or a comma list of km/h")
     if args.seeds < 1 or any(n < 1 for n in steps) or not 0.0 < args.conicity <= 0.5:
         parser.error(f"--seeds = {args.seeds}, --n-sub = {args.n_sub!r}: >= 1; --conicity = {args.conicity}: in (0, 0.5]")
     out: dict[str, dict] = {}
