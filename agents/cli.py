@@ -103,7 +103,8 @@ def _env_variant(env_id: str) -> str | None:
 @argument("--parts", default=None,
           help="which parts of the protocol to run. Protocol v2 (-v1 ids): critical, cost, margins (default: these three; "
                "margins needs the [margins] extra), curving, "
-               "ramp, ramp_down (closed-loop ramp-down from fully developed hunting) and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
+               "ramp, ramp_down (closed-loop ramp-down from fully developed hunting), ramp_down_ideal (the same on a perfect "
+               "track with noise-free sensors) and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--n-sub", type=bounded(int, 1, 1000), default=None,
           help="RK4 substeps per env step for every run of the protocol (default: the env's own step; v1: 10). "
@@ -301,8 +302,8 @@ def cmd_margins(args: argparse.Namespace) -> int:
                "results.json (integration_n_sub) and below the table")
 @argument("--env-config", default=None)
 @argument("--env", default="Bogie/Hunting-v1",
-          help="env id (its version picks the protocol: -v1 ids protocol v2 with critical, cost, margins, curving and "
-               "ramp_down; -v0 ids protocol v1 with the ramp plots)")
+          help="env id (its version picks the protocol: -v1 ids protocol v2 with critical, cost, margins, curving, "
+               "ramp_down and ramp_down_ideal; -v0 ids protocol v1 with the ramp plots)")
 @argument("--out", required=True, help="output folder, e.g. docs/results")
 @policy_options
 @backend_options

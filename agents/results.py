@@ -230,11 +230,13 @@ def _at_ceiling(entry: dict | None) -> bool:
     return bool(entry) and entry["bound"].startswith("at least")
 
 
-#: The conicities of the ramp-down part that the table shows (results.json has all of them).
+#: The conicities of the ramp-down parts that the table shows (results.json has all of them).
 RAMP_DOWN_COLUMNS = ("0.025", "0.1")
+#: The ramp-down parts and the names of their columns.
+RAMP_DOWN_PARTS = {"ramp_down": "hunting ends", "ramp_down_ideal": "ideal track: hunting ends"}
 #: Protocol v2's parts in ``bogie results``, and the key of a result that says a part has run
 #: (``--resume`` runs the parts a kept row lacks).
-V2_RESULTS_PARTS = ("critical", "cost", "margins", "curving", "ramp_down")
+V2_RESULTS_PARTS = ("critical", "cost", "margins", "curving", "ramp_down", "ramp_down_ideal")
 V2_PART_KEYS = {"critical": "search"}
 
 
@@ -253,10 +255,11 @@ def v2_columns(result: dict) -> dict[str, dict | None]:
     for key, entry in result.items():
         if key.startswith("delay_") and isinstance(entry, dict) and "kmh" in entry:
             cols[f"{key[6:]} delay"] = entry
-    ramp_down = (result.get("ramp_down") or {}).get("by_conicity", {})
-    for lam in RAMP_DOWN_COLUMNS:
-        if lam in ramp_down:
-            cols[f"hunting ends λ {lam}"] = ramp_down[lam]
+    for part, title in RAMP_DOWN_PARTS.items():
+        ramp_down = (result.get(part) or {}).get("by_conicity", {})
+        for lam in RAMP_DOWN_COLUMNS:
+            if lam in ramp_down:
+                cols[f"{title} λ {lam}"] = ramp_down[lam]
     return cols
 
 
@@ -293,6 +296,10 @@ def v2_table(results: list[dict], n_sub: int | None = None) -> str:
         notes.append("Hunting ends λ: the speed where hunting, fully developed at the ceiling, stops once the controller is "
                      "switched on and the speed ramps down (the part ramp_down, lowest of the seeds; docs/results.md, "
                      "'Recovery from hunting'; every conicity in results.json).")  # fmt: skip
+    if any(n.startswith("ideal track") for n in names):
+        notes.append("Ideal track: the same ramp-down on a perfect track with noise-free sensors (the part ramp_down_ideal): "
+                     "the closed loop's nonlinear critical speed, deterministic in the integration step "
+                     "(docs/results.md, 'Recovery from hunting').")  # fmt: skip
     if dropped:
         notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
     curving = [{**r["curving"], "policy": r["policy"]} for r in results if r.get("curving")]
@@ -317,9 +324,10 @@ def v2_summary(result: dict) -> str:
     if "margins" in result:
         m = result["margins"]
         line += f"; gain margin {m.get('gain_margin')}, delay margin {m.get('delay_margin_s')} s"
-    if "ramp_down" in result:
-        line += "; hunting ends on the ramp-down at " + ", ".join(
-            f"{lam}: {v2_speed(e)}" for lam, e in result["ramp_down"]["by_conicity"].items())
+    for part, where in (("ramp_down", ""), ("ramp_down_ideal", " on the ideal track")):
+        if part in result:
+            line += f"; hunting ends on the ramp-down{where} at " + ", ".join(
+                f"{lam}: {v2_speed(e)}" for lam, e in result[part]["by_conicity"].items())
     return line
 
 

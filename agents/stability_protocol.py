@@ -79,6 +79,7 @@ from bogie_env.actuators import CHANNEL_NAMES, active_channels
 from bogie_env.analysis.en14363 import FRAME_ACCEL_LIMIT, running_signals_rows
 from bogie_env.envs import scenario as scenarios
 from bogie_env.envs.config import bogie_params, make_config, merge_config
+from bogie_env.envs.sensors import SENSOR_NAMES
 from bogie_env.envs.task import HuntingTask
 from bogie_env.params import ConfigError
 
@@ -424,10 +425,23 @@ class Progress:
         print(f"[protocol v2] {self.label}: {what}; {elapsed:.0f} s elapsed, ~{left:.0f} s left", file=sys.stderr, flush=True)
 
 
-def protocol_config(env_config: dict, settings: Settings, observation_type: str, delay_steps: int | None = None) -> dict:
+#: The ideal world of the ``ramp_down_ideal`` part: a perfect track (no alignment) and sensors
+#: without noise; each sensor keeps its bias and filter, the actuators their delay, lag, rate and
+#: force limits. Nothing random excites the bogie, so the runs are deterministic in the step. A
+#: seed keeps its start and perturbation; its biases are other draws of the same sizes (a perfect
+#: track draws no start position on the alignment).
+IDEAL_WORLD: dict[str, Any] = {
+    "track": {"level": None, "rms": 0.0},
+    "sensors": {name: {"noise_density": 0.0} for name in SENSOR_NAMES},
+}
+
+
+def protocol_config(env_config: dict, settings: Settings, observation_type: str, delay_steps: int | None = None,
+                    ideal: bool = False) -> dict:  # fmt: skip
     """The task config of the protocol's runs: fixed speeds over the search range, the env's
     randomisation ranges kept (they set the integration step) but every draw pinned by reset
-    options, no random faults, the large initial perturbation on every row."""
+    options, no random faults, the large initial perturbation on every row. ``ideal``: on a
+    perfect track with noise-free sensors (:data:`IDEAL_WORLD`)."""
     ranges = {k: v for k, v in env_config["randomize"].items() if k not in scenarios.PROBABILITIES}
     update: dict[str, Any] = {
         "speed": {"start_kmh": settings.floor_kmh, "end_kmh": settings.ceiling_kmh, "accel": 0.0,
@@ -441,7 +455,8 @@ def protocol_config(env_config: dict, settings: Settings, observation_type: str,
         update["sensors"] = {"enabled": False}
     if delay_steps is not None:
         update["actuators"] = {name: {"delay_steps": delay_steps} for name in CHANNEL_NAMES}
-    return make_config(merge_config(env_config, update))
+    config = merge_config(env_config, update)
+    return make_config(merge_config(config, IDEAL_WORLD) if ideal else config)
 
 
 def step_guarded(task: HuntingTask, actions: Any) -> np.ndarray:
@@ -468,9 +483,9 @@ class Runner:
         self.progress = ctx.progress
         self.row_steps_done = 0.0
 
-    def _task(self, cases: list[Case], speeds: np.ndarray, loop: str) -> tuple[HuntingTask, RowGroups]:
+    def _task(self, cases: list[Case], speeds: np.ndarray, loop: str, ideal: bool = False) -> tuple[HuntingTask, RowGroups]:
         s, ctx = self.settings, self.ctx
-        cfg = protocol_config(ctx.env_config, s, ctx.observation_type, s.delay_steps if loop == "delay" else None)
+        cfg = protocol_config(ctx.env_config, s, ctx.observation_type, s.delay_steps if loop == "delay" else None, ideal)
         task = ctx.task(len(cases), cfg)
         rows = np.arange(len(cases))
         task.seed_rows(rows, [c.seed for c in cases])
@@ -848,7 +863,24 @@ def ramp_speeds_kmh(settings: Settings, dt: float, steps: int) -> np.ndarray:
 
 @register_part("ramp_down")
 def ramp_down_part(ctx: PartContext) -> dict[str, Any]:
-    """Closed-loop nonlinear critical speed by the ramp-down method, per conicity of the grid.
+    """Closed-loop nonlinear critical speed by the ramp-down method, per conicity of the grid,
+    under the v1 defaults (the alert track, sensor noise): :func:`ramp_down_runs`."""
+    return {"ramp_down": ramp_down_runs(ctx, ideal=False)}
+
+
+@register_part("ramp_down_ideal")
+def ramp_down_ideal_part(ctx: PartContext) -> dict[str, Any]:
+    """The ramp-down in :data:`IDEAL_WORLD`: the same controller and loop (bias, filters, delay,
+    rate and force limits) on a perfect track with noise-free sensors. Nothing random knocks
+    the bogie off a hunting cycle, so the value is where that cycle ends, the closed loop's
+    nonlinear critical speed in the textbook sense (True 2013), and it is deterministic in the
+    integration step, unlike the columns judged under noise."""
+    return {"ramp_down_ideal": ramp_down_runs(ctx, ideal=True)}
+
+
+def ramp_down_runs(ctx: PartContext, ideal: bool) -> dict[str, Any]:
+    """Closed-loop nonlinear critical speed by the ramp-down method, per conicity of the grid
+    (``ideal``: in :data:`IDEAL_WORLD`).
 
     Each seed's bogie runs passive at the ceiling for ``ramp_down_onset_s`` from the 12 mm
     start (fully developed hunting on every conicity of the grid at 600 km/h; a seed whose
@@ -870,7 +902,7 @@ def ramp_down_part(ctx: PartContext) -> dict[str, Any]:
     cols = columns(ctx.env_config, replace(s, columns=names))
     cases = [c for col in cols.values() for c in col]
     n = len(cases)
-    task, policy = Runner(ctx)._task(cases, np.full(n, s.ceiling_kmh), "default")
+    task, policy = Runner(ctx)._task(cases, np.full(n, s.ceiling_kmh), "default", ideal)
     dt = task.config["dt"]
     onset, hold = int(round(s.ramp_down_onset_s / dt)), int(round(s.transient_s / dt))
     length = int(round((s.duration_s - s.transient_s) / dt))  # a window: a fixed-speed run's assessed time
@@ -947,9 +979,10 @@ def ramp_down_part(ctx: PartContext) -> dict[str, Any]:
             "fails_below_kmh": {str(col[a].seed): [round(float(top_kmh[w]), 1) for w in np.nonzero(failing[i, end.first_pass[i]:])[0] + end.first_pass[i]]
                                 for a, i in enumerate(idx) if failing[i, end.first_pass[i]:].any()},
         }  # fmt: skip
-    return {"ramp_down": {"decel_m_per_s2": s.ramp_down_decel, "onset_s": s.ramp_down_onset_s, "hold_s": s.transient_s,
-                          "window_s": s.duration_s - s.transient_s, "window_every_kmh": s.ramp_down_stride_kmh,
-                          "floor_kmh": s.floor_kmh, "ceiling_kmh": s.ceiling_kmh, "by_conicity": out}}  # fmt: skip
+    world = {"world": "perfect track, noise-free sensors (bias, filters and actuators as v1)"} if ideal else {}
+    return {"decel_m_per_s2": s.ramp_down_decel, "onset_s": s.ramp_down_onset_s, "hold_s": s.transient_s,
+            "window_s": s.duration_s - s.transient_s, "window_every_kmh": s.ramp_down_stride_kmh,
+            "floor_kmh": s.floor_kmh, "ceiling_kmh": s.ceiling_kmh, **world, "by_conicity": out}  # fmt: skip
 
 
 # ---- the protocol ---------------------------------------------------------------------------------

@@ -2,7 +2,10 @@
 values move when the step or the deceleration is halved.
 
     PYTHONPATH=$PWD:$PWD/.shim python benchmarks/ramp_down_convergence.py [--policy passive --policy pretrained] \
-        [--n-sub 10,20] [--decel 0.25] [--conicities 0.025,0.05,0.1,0.2,0.3] [--seed 0] [--seeds 10]
+        [--n-sub 10,20] [--decel 0.25] [--conicities 0.025,0.05,0.1,0.2,0.3] [--seed 0] [--seeds 10] [--ideal]
+
+``--ideal`` runs the part ``ramp_down_ideal`` instead: the same ramp-down on a perfect track
+with noise-free sensors (``stability_protocol.IDEAL_WORLD``).
 
 Every (step, deceleration) pair runs the part (``agents/stability_protocol.py``,
 :func:`ramp_down_part`) on seeds ``--seed`` to ``--seed`` + ``--seeds`` - 1 (the nominal column
@@ -38,6 +41,7 @@ def main() -> None:
     parser.add_argument("--conicities", default="0.025,0.05,0.1,0.2,0.3")
     parser.add_argument("--seed", type=int, default=0, help="first seed")
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--ideal", action="store_true", help="the part ramp_down_ideal (perfect track, noise-free sensors)")
     args = parser.parse_args()
     steps = [int(v) for v in floats(parser, "--n-sub", args.n_sub)]
     decels, conicities = floats(parser, "--decel", args.decel), tuple(floats(parser, "--conicities", args.conicities))
@@ -56,7 +60,8 @@ def main() -> None:
         for n_sub, decel in pairs:
             config = make_config({"integration": {"n_sub": n_sub}}, variant="v1")
             settings = Settings(seed=args.seed, seeds=args.seeds, conicities=conicities, ramp_down_decel=decel, progress=False)
-            part = evaluate_policy_v2(policy, config, settings, ("ramp_down",))["ramp_down"]["by_conicity"]
+            name = "ramp_down_ideal" if args.ideal else "ramp_down"
+            part = evaluate_policy_v2(policy, config, settings, (name,))[name]["by_conicity"]
             out[f"{policy}, {n_sub} substeps, {decel:g} m/s^2"] = {
                 lam: {"kmh": e["kmh"], "bound": e["bound"], "median_kmh": e["spread_kmh"]["median"],
                       "per_seed_kmh": e["per_seed_kmh"]}

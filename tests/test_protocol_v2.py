@@ -271,6 +271,57 @@ def test_ramp_down_switches_the_controller_on(passive_ramp_down):
     assert bad < passive_ramp_down["by_conicity"]["0.1"]["kmh"] - 10
 
 
+def test_ideal_world_zeroes_only_the_track_and_the_sensor_noise():
+    """The ideal ramp-down's task: no alignment, no sensor noise; every bias, filter and actuator
+    setting as in the protocol's own task."""
+    from bogie_env.envs.sensors import S_FILTER_WEIGHT, S_NOISE_RMS
+    from bogie_env.envs.task import HuntingTask
+
+    v1 = make_config(variant="v1")
+    default = sp.protocol_config(v1, tiny(), "sensors")
+    ideal = sp.protocol_config(v1, tiny(), "sensors", ideal=True)
+    assert ideal["actuators"] == default["actuators"] and ideal["randomize"] == default["randomize"]
+    a, b = HuntingTask(2, default), HuntingTask(2, ideal)
+    for task in (a, b):
+        task.seed_rows(np.arange(2), [0, 1])
+        task.reset_rows(np.arange(2), {"start_kmh": 200.0, "end_kmh": 200.0, "accel": 0.0})
+    assert np.all(b.sim._track[0] == 0.0) and np.any(a.sim._track[0] != 0.0)
+    assert np.all(b.sensor_table[:, S_NOISE_RMS] == 0.0) and np.all(a.sensor_table[:, S_NOISE_RMS] > 0.0)
+    assert np.array_equal(b.sensor_table[:, S_FILTER_WEIGHT], a.sensor_table[:, S_FILTER_WEIGHT])
+    assert np.all(b.sensor_bias != 0.0)  # drawn as under v1 (a perfect track draws no start, so other draws)
+    for name, channel in default["sensors"].items():
+        if isinstance(channel, dict):
+            assert ideal["sensors"][name] == {**channel, "noise_density": 0.0}
+
+
+def test_ramp_down_ideal_passive_is_the_same_for_every_seed():
+    """Passive on the ideal track: nothing random is left, so both seeds end the hunting at the
+    same speed (on the alert track they end 4 km/h apart: 142.1 and 146.1), between the linear
+    critical speed (141.5 km/h: no cycle below it on this supercritical branch) and the speed
+    where the model's own limit cycle, ramped down at the same rate by the analysis module,
+    stops touching the flange (163.6 km/h: :func:`bogie_env.analysis.bifurcation.ramp_down`);
+    measured 152.1 km/h."""
+    from bogie_env.analysis.bifurcation import limit_cycle_state, ramp_down
+
+    ideal = sp.evaluate_policy_v2("passive", make_config(variant="v1"), tiny(**RAMP), parts=("ramp_down_ideal",))
+    part = ideal["ramp_down_ideal"]
+    assert part["world"].startswith("perfect track")
+    entry = part["by_conicity"]["0.1"]
+    assert entry["bound"].startswith("hunting ended") and len(set(entry["per_seed_kmh"])) == 1, entry
+    model = BogieModel(load_params(None).replace(lam=0.1))
+    off_flange, _ = ramp_down(model, 3.6 * 0.5, 250.0, 80.0, limit_cycle_state(model, 250.0), model.params.delta)
+    assert critical_speed(model).speed_kmh <= entry["kmh"] <= off_flange, (entry, off_flange)
+
+
+def test_ramp_down_ideal_does_not_move_with_the_step():
+    """Skyhook (it acts on the accelerometer and the gyro) on the ideal track: halving v1's step
+    moves no seed's value."""
+    values = [sp.evaluate_policy_v2("skyhook", make_config({"integration": {"n_sub": n}}, variant="v1"), tiny(**RAMP),
+                                    parts=("ramp_down_ideal",))["ramp_down_ideal"]["by_conicity"]["0.1"]["per_seed_kmh"]
+              for n in (10, 20)]  # fmt: skip
+    assert values[0] == values[1], values
+
+
 def test_json_keys():
     v1 = make_config(variant="v1")
     settings = tiny(seeds=1, grid_ratio=2.0, floor_kmh=60.0, ceiling_kmh=480.0, tol_kmh=60.0, duration_s=6.0, transient_s=2.0,
