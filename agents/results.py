@@ -298,8 +298,8 @@ def v2_table(results: list[dict], n_sub: int | None = None) -> str:
                      "'Recovery from hunting'; every conicity in results.json).")  # fmt: skip
     if any(n.startswith("ideal track") for n in names):
         notes.append("Ideal track: the same ramp-down on a perfect track with noise-free sensors (the part ramp_down_ideal): "
-                     "the closed loop's nonlinear critical speed, deterministic in the integration step "
-                     "(docs/results.md, 'Recovery from hunting').")  # fmt: skip
+                     "where the closed loop's hunting stops failing the criterion when nothing random knocks the bogie off "
+                     "its cycle; insensitive to the integration step (docs/results.md, 'On the ideal track').")  # fmt: skip
     if dropped:
         notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
     curving = [{**r["curving"], "policy": r["policy"]} for r in results if r.get("curving")]

@@ -2,10 +2,12 @@
 values move when the step or the deceleration is halved.
 
     PYTHONPATH=$PWD:$PWD/.shim python benchmarks/ramp_down_convergence.py [--policy passive --policy pretrained] \
-        [--n-sub 10,20] [--decel 0.25] [--conicities 0.025,0.05,0.1,0.2,0.3] [--seed 0] [--seeds 10] [--ideal]
+        [--n-sub 10,20] [--decel 0.25] [--conicities 0.025,0.05,0.1,0.2,0.3] [--seed 0] [--seeds 10] [--ideal] \
+        [--stride-kmh 2]
 
 ``--ideal`` runs the part ``ramp_down_ideal`` instead: the same ramp-down on a perfect track
-with noise-free sensors (``stability_protocol.IDEAL_WORLD``).
+with noise-free sensors (``stability_protocol.IDEAL_WORLD``); ``--stride-kmh`` sets how often a
+judged window starts (the part's resolution; default 2 km/h).
 
 Every (step, deceleration) pair runs the part (``agents/stability_protocol.py``,
 :func:`ramp_down_part`) on seeds ``--seed`` to ``--seed`` + ``--seeds`` - 1 (the nominal column
@@ -42,6 +44,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="first seed")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--ideal", action="store_true", help="the part ramp_down_ideal (perfect track, noise-free sensors)")
+    parser.add_argument("--stride-kmh", type=float, default=2.0, help="a judged window starts every this many km/h")
     args = parser.parse_args()
     steps = [int(v) for v in floats(parser, "--n-sub", args.n_sub)]
     decels, conicities = floats(parser, "--decel", args.decel), tuple(floats(parser, "--conicities", args.conicities))
@@ -49,9 +52,10 @@ def main() -> None:
         parser.error(f"--n-sub = {args.n_sub!r} and --seeds = {args.seeds} must be >= 1")
     for decel in decels:  # every setting is checked before the first run
         try:
-            Settings(seed=args.seed, seeds=args.seeds, conicities=conicities, ramp_down_decel=decel).check()
+            Settings(seed=args.seed, seeds=args.seeds, conicities=conicities, ramp_down_decel=decel,
+                     ramp_down_stride_kmh=args.stride_kmh).check()
         except ConfigError as error:
-            parser.error(f"--decel: {error}")
+            parser.error(f"--decel or --stride-kmh: {error}")
     policies = args.policy or ["passive", "pretrained"]
     pairs = [(n, d) for n in steps for d in decels]
     total, done, t0 = len(policies) * len(pairs), 0, time.monotonic()
@@ -59,10 +63,12 @@ def main() -> None:
     for policy in policies:
         for n_sub, decel in pairs:
             config = make_config({"integration": {"n_sub": n_sub}}, variant="v1")
-            settings = Settings(seed=args.seed, seeds=args.seeds, conicities=conicities, ramp_down_decel=decel, progress=False)
+            settings = Settings(seed=args.seed, seeds=args.seeds, conicities=conicities, ramp_down_decel=decel,
+                                ramp_down_stride_kmh=args.stride_kmh, progress=False)
             name = "ramp_down_ideal" if args.ideal else "ramp_down"
             part = evaluate_policy_v2(policy, config, settings, (name,))[name]["by_conicity"]
-            out[f"{policy}, {n_sub} substeps, {decel:g} m/s^2"] = {
+            where = (", ideal track" if args.ideal else "") + (f", windows every {args.stride_kmh:g} km/h" if args.stride_kmh != 2.0 else "")
+            out[f"{policy}, {n_sub} substeps, {decel:g} m/s^2{where}"] = {
                 lam: {"kmh": e["kmh"], "bound": e["bound"], "median_kmh": e["spread_kmh"]["median"],
                       "per_seed_kmh": e["per_seed_kmh"]}
                 for lam, e in part.items()
