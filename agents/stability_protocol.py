@@ -429,8 +429,8 @@ class Progress:
 #: and observations without noise; each sensor keeps its bias and filter, the actuators their
 #: delay, lag, rate and force limits. Nothing random excites the bogie while it runs, so the
 #: runs do not depend on the integration step beyond its error. A seed still sets the 12 mm
-#: start and the sensor biases (other draws of the same sizes than under v1: a perfect track
-#: draws no start position on the alignment).
+#: start and the sensor biases (the same sizes as under v1, other draws: a perfect track draws
+#: no start position on the alignment).
 IDEAL_WORLD: dict[str, Any] = {
     "track": {"level": None, "rms": 0.0},
     "sensors": {name: {"noise_density": 0.0} for name in SENSOR_NAMES},
