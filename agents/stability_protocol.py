@@ -431,6 +431,7 @@ class Progress:
 #: runs do not depend on the integration step beyond its error. A seed still sets the 12 mm
 #: start and the sensor biases (the same sizes as under v1, other draws: a perfect track draws
 #: no start position on the alignment).
+IDEAL_WORLD_NAME = "perfect track, noise-free sensors (bias, filters and actuators as v1)"
 IDEAL_WORLD: dict[str, Any] = {
     "track": {"level": None, "rms": 0.0},
     "sensors": {name: {"noise_density": 0.0} for name in SENSOR_NAMES},
@@ -439,11 +440,11 @@ IDEAL_WORLD: dict[str, Any] = {
 
 
 def protocol_config(env_config: dict, settings: Settings, observation_type: str, delay_steps: int | None = None,
-                    ideal: bool = False) -> dict:  # fmt: skip
+                    world: Mapping[str, Any] | None = None) -> dict:  # fmt: skip
     """The task config of the protocol's runs: fixed speeds over the search range, the env's
     randomisation ranges kept (they set the integration step) but every draw pinned by reset
-    options, no random faults, the large initial perturbation on every row. ``ideal``: on a
-    perfect track with noise-free sensors (:data:`IDEAL_WORLD`)."""
+    options, no random faults, the large initial perturbation on every row. ``world``: a config
+    overlay merged last, e.g. :data:`IDEAL_WORLD` (a perfect track, noise-free sensors)."""
     ranges = {k: v for k, v in env_config["randomize"].items() if k not in scenarios.PROBABILITIES}
     update: dict[str, Any] = {
         "speed": {"start_kmh": settings.floor_kmh, "end_kmh": settings.ceiling_kmh, "accel": 0.0,
@@ -458,7 +459,7 @@ def protocol_config(env_config: dict, settings: Settings, observation_type: str,
     if delay_steps is not None:
         update["actuators"] = {name: {"delay_steps": delay_steps} for name in CHANNEL_NAMES}
     config = merge_config(env_config, update)
-    return make_config(merge_config(config, IDEAL_WORLD) if ideal else config)
+    return make_config(merge_config(config, dict(world)) if world else config)
 
 
 def step_guarded(task: HuntingTask, actions: Any) -> np.ndarray:
@@ -485,9 +486,10 @@ class Runner:
         self.progress = ctx.progress
         self.row_steps_done = 0.0
 
-    def _task(self, cases: list[Case], speeds: np.ndarray, loop: str, ideal: bool = False) -> tuple[HuntingTask, RowGroups]:
+    def _task(self, cases: list[Case], speeds: np.ndarray, loop: str,
+              world: Mapping[str, Any] | None = None) -> tuple[HuntingTask, RowGroups]:  # fmt: skip
         s, ctx = self.settings, self.ctx
-        cfg = protocol_config(ctx.env_config, s, ctx.observation_type, s.delay_steps if loop == "delay" else None, ideal)
+        cfg = protocol_config(ctx.env_config, s, ctx.observation_type, s.delay_steps if loop == "delay" else None, world)
         task = ctx.task(len(cases), cfg)
         rows = np.arange(len(cases))
         task.seed_rows(rows, [c.seed for c in cases])
@@ -867,7 +869,7 @@ def ramp_speeds_kmh(settings: Settings, dt: float, steps: int) -> np.ndarray:
 def ramp_down_part(ctx: PartContext) -> dict[str, Any]:
     """Closed-loop nonlinear critical speed by the ramp-down method, per conicity of the grid,
     under the v1 defaults (the alert track, sensor noise): :func:`ramp_down_runs`."""
-    return {"ramp_down": ramp_down_runs(ctx, ideal=False)}
+    return {"ramp_down": ramp_down_runs(ctx)}
 
 
 @register_part("ramp_down_ideal")
@@ -879,12 +881,13 @@ def ramp_down_ideal_part(ctx: PartContext) -> dict[str, Any]:
     True 2013, judged by the protocol's criterion instead of by the cycle's existence: a small
     cycle that passes it may live on below), and it is insensitive to the integration step,
     unlike the values judged under noise."""
-    return {"ramp_down_ideal": ramp_down_runs(ctx, ideal=True)}
+    return {"ramp_down_ideal": ramp_down_runs(ctx, IDEAL_WORLD, IDEAL_WORLD_NAME)}
 
 
-def ramp_down_runs(ctx: PartContext, ideal: bool) -> dict[str, Any]:
+def ramp_down_runs(ctx: PartContext, world: Mapping[str, Any] | None = None,
+                   world_name: str | None = None) -> dict[str, Any]:  # fmt: skip
     """Closed-loop nonlinear critical speed by the ramp-down method, per conicity of the grid
-    (``ideal``: in :data:`IDEAL_WORLD`).
+    (``world``: a config overlay of the task, e.g. :data:`IDEAL_WORLD`, named ``world_name`` in the result).
 
     Each seed's bogie runs passive at the ceiling for ``ramp_down_onset_s`` from the 12 mm
     start (fully developed hunting on every conicity of the grid at 600 km/h; a seed whose
@@ -906,7 +909,7 @@ def ramp_down_runs(ctx: PartContext, ideal: bool) -> dict[str, Any]:
     cols = columns(ctx.env_config, replace(s, columns=names))
     cases = [c for col in cols.values() for c in col]
     n = len(cases)
-    task, policy = Runner(ctx)._task(cases, np.full(n, s.ceiling_kmh), "default", ideal)
+    task, policy = Runner(ctx)._task(cases, np.full(n, s.ceiling_kmh), "default", world)
     dt = task.config["dt"]
     onset, hold = int(round(s.ramp_down_onset_s / dt)), int(round(s.transient_s / dt))
     length = int(round((s.duration_s - s.transient_s) / dt))  # a window: a fixed-speed run's assessed time
@@ -983,10 +986,10 @@ def ramp_down_runs(ctx: PartContext, ideal: bool) -> dict[str, Any]:
             "fails_below_kmh": {str(col[a].seed): [round(float(top_kmh[w]), 1) for w in np.nonzero(failing[i, end.first_pass[i]:])[0] + end.first_pass[i]]
                                 for a, i in enumerate(idx) if failing[i, end.first_pass[i]:].any()},
         }  # fmt: skip
-    world = {"world": "perfect track, noise-free sensors (bias, filters and actuators as v1)"} if ideal else {}
+    named = {"world": world_name} if world_name else {}
     return {"decel_m_per_s2": s.ramp_down_decel, "onset_s": s.ramp_down_onset_s, "hold_s": s.transient_s,
             "window_s": s.duration_s - s.transient_s, "window_every_kmh": s.ramp_down_stride_kmh,
-            "floor_kmh": s.floor_kmh, "ceiling_kmh": s.ceiling_kmh, **world, "by_conicity": out}  # fmt: skip
+            "floor_kmh": s.floor_kmh, "ceiling_kmh": s.ceiling_kmh, **named, "by_conicity": out}  # fmt: skip
 
 
 # ---- the protocol ---------------------------------------------------------------------------------

@@ -67,7 +67,8 @@ def main() -> None:
                                 ramp_down_stride_kmh=args.stride_kmh, progress=False)
             name = "ramp_down_ideal" if args.ideal else "ramp_down"
             part = evaluate_policy_v2(policy, config, settings, (name,))[name]["by_conicity"]
-            where = (", ideal track" if args.ideal else "") + (f", windows every {args.stride_kmh:g} km/h" if args.stride_kmh != 2.0 else "")
+            where = ", ideal track" if args.ideal else ""
+            where += f", windows every {args.stride_kmh:g} km/h" if args.stride_kmh != 2.0 else ""
             out[f"{policy}, {n_sub} substeps, {decel:g} m/s^2{where}"] = {
                 lam: {"kmh": e["kmh"], "bound": e["bound"], "median_kmh": e["spread_kmh"]["median"],
                       "per_seed_kmh": e["per_seed_kmh"]}

@@ -279,7 +279,7 @@ def test_ideal_world_zeroes_only_the_track_and_the_sensor_noise():
 
     v1 = make_config(variant="v1")
     default = sp.protocol_config(v1, tiny(), "sensors")
-    ideal = sp.protocol_config(v1, tiny(), "sensors", ideal=True)
+    ideal = sp.protocol_config(v1, tiny(), "sensors", world=sp.IDEAL_WORLD)
     for key in default:
         if key not in ("track", "sensors", "observation"):
             assert ideal[key] == default[key], key
