@@ -97,7 +97,11 @@ def _env_variant(env_id: str) -> str | None:
     return IDS[env_id]
 
 
-@command("evaluate", "the evaluation protocol of the env's version: v1 (for -v0 ids) or v2 (for -v1 ids)")
+PROTOCOL_HELP = ("protocol version for the -v1 ids: 3 (default; flange contact counts only when sustained, so a rough "
+                 "track's forced contacts do not fail a run) or 2 (every contact counts; docs/results.md, 'Protocol v3')")
+
+
+@command("evaluate", "the evaluation protocol of the env's version: v1 (for -v0 ids) or v3/v2 (for -v1 ids)")
 @json_option
 @argument("--out", default=None, help="write the JSON result here as well (atomically)")
 @argument("--parts", default=None,
@@ -106,6 +110,7 @@ def _env_variant(env_id: str) -> str | None:
                "ramp, ramp_down (closed-loop ramp-down from fully developed hunting), ramp_down_ideal (the same on a perfect "
                "track with noise-free sensors) and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
+@argument("--protocol", type=int, choices=(2, 3), default=None, help=PROTOCOL_HELP)
 @argument("--n-sub", type=bounded(int, 1, 1000), default=None,
           help="RK4 substeps per env step for every run of the protocol (default: the env's own step; v1: 10). "
                "40 runs the v1 protocol with the integration converged (docs/results.md, 'Step convergence')")
@@ -122,9 +127,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     env_config = with_substeps(env_config_from_args(args, _env_variant(args.env)), args.n_sub)
     env_version = args.env.rsplit("-", 1)[-1]
     if env_version == "v0":
+        _refuse_protocol_for_v0(args)
         results, protocol_version = _evaluate_v1(args, env_config), 1
     else:
-        results, protocol_version = _evaluate_v2(args, env_config), 2
+        results, protocol_version = _evaluate_v2(args, env_config), protocol_settings(args).version
     payload = {"env_id": args.env, "env_version": env_version, "protocol_version": protocol_version,
                "integration_n_sub": env_config["integration"]["n_sub"], "policies": results}  # fmt: skip
     if args.out:
@@ -139,6 +145,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         for r in results:
             print(v2_summary(r))
     return 0
+
+
+def protocol_settings(args: argparse.Namespace):
+    """The -v1 ids' protocol settings of ``--protocol`` and ``--seed``."""
+    from .stability_protocol import PROTOCOL_VERSION, Settings
+
+    return Settings(version=args.protocol or PROTOCOL_VERSION, seed=args.seed, progress=True)
+
+
+def _refuse_protocol_for_v0(args: argparse.Namespace) -> None:
+    if args.protocol is not None:
+        raise ConfigError(f"--protocol {args.protocol} chooses the -v1 ids' protocol; -v0 ids run protocol v1")
 
 
 def with_substeps(env_config: dict, n_sub: int | None) -> dict:
@@ -172,12 +190,12 @@ def _default_v2_parts() -> str:
 def _evaluate_v2(args: argparse.Namespace, env_config: dict) -> list[dict]:
     """Protocol v2 (agents/stability_protocol.py) for every --policy."""
     from .policies import load_policy
-    from .stability_protocol import Settings, available_parts, evaluate_policy_v2
+    from .stability_protocol import available_parts, evaluate_policy_v2
 
     parts = _requested_parts(args, set(available_parts()), _default_v2_parts())
     for spec in args.policy:
         load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any run
-    settings = Settings(seed=args.seed, progress=True)
+    settings = protocol_settings(args)
     if args.backend == "ray":  # one task per controller and part (docs/distributed.md)
         from .evaluation_tasks import evaluate_many_v2
 
@@ -297,6 +315,7 @@ def cmd_margins(args: argparse.Namespace) -> int:
 @argument("--resume", action="store_true",
           help="keep controllers already in OUT/results.json (run at the same --n-sub); v1: run only the parts they lack")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
+@argument("--protocol", type=int, choices=(2, 3), default=None, help=PROTOCOL_HELP + "; written into results.json")
 @argument("--n-sub", type=bounded(int, 1, 1000), default=None,
           help="RK4 substeps per env step for every run (default: the env's own step; v1: 10); written into "
                "results.json (integration_n_sub) and below the table")
@@ -315,13 +334,15 @@ def cmd_results(args: argparse.Namespace) -> int:
     _check_workers(args)
     env_config = with_substeps(env_config_from_args(args, _env_variant(args.env)), args.n_sub)
     if args.env.rsplit("-", 1)[-1] == "v0":
+        _refuse_protocol_for_v0(args)
         if args.n_sub is not None:
             raise ConfigError("--n-sub sets protocol v2's step (the -v1 ids); protocol v1 keeps the -v0 ids' own step")
         payload = run(args.policy, env_config, Path(args.out), args.resume, args.seed, trusted=args.trust_policy,
                       backend=args.backend, address=args.address, workers=args.workers)  # fmt: skip
     else:
         payload = run_v2(args.policy, env_config, Path(args.out), args.resume, args.seed, trusted=args.trust_policy,
-                         backend=args.backend, address=args.address, workers=args.workers)  # fmt: skip
+                         backend=args.backend, address=args.address, workers=args.workers,
+                         settings=protocol_settings(args))  # fmt: skip
     print((Path(args.out) / "table.md").read_text())
     return 0 if payload else 1
 

@@ -343,7 +343,7 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
     n_sub = env_config["integration"]["n_sub"]
     settings = settings or Settings(seed=seed)
     if done:
-        _check_same_run(json_path, n_sub, settings.seed)
+        _check_same_run(json_path, n_sub, settings.seed, settings.version)
     specs = list(dict.fromkeys(policies))
     work = {spec: tuple(p for p in parts if spec not in done or V2_PART_KEYS.get(p, p) not in done[spec]) for spec in specs}
     work = {spec: todo for spec, todo in work.items() if todo}
@@ -364,8 +364,8 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
         result = distributed.get(spec) or evaluate_policy_v2(spec, env_config, settings, todo, trusted=trusted)
         _check_parts_ran(spec, todo, result)
         rows[spec] = {**rows.get(spec, {}), **result, "policy": spec}
-        write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed))
-    write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed))
+        write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed, settings.version))
+    write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed, settings.version))
     results = [rows[spec] for spec in specs]
     write_text_atomic(out / "table.md", v2_table(results, n_sub))
     return {"policies": results}
@@ -384,18 +384,18 @@ def _check_parts_ran(spec: str, parts: tuple[str, ...], result: dict) -> None:
                                "results.V2_PART_KEYS names the key each part leaves")  # fmt: skip
 
 
-def _v2_payload(results: list[dict], n_sub: int | None, seed: int = 0) -> str:
+def _v2_payload(results: list[dict], n_sub: int | None, seed: int = 0, protocol_version: int = 2) -> str:
     """results.json's text; ``integration_n_sub`` only when a step was set (``--n-sub``), ``seed``
     only when it is not the protocol's 0 (so the default file is unchanged)."""
-    head = {"protocol_version": 2} | ({} if n_sub is None else {"integration_n_sub": n_sub}) | ({"seed": seed} if seed else {})
+    head = {"protocol_version": protocol_version} | ({} if n_sub is None else {"integration_n_sub": n_sub}) | ({"seed": seed} if seed else {})
     return json.dumps(head | {"policies": results}, indent=2, default=float)
 
 
-def _check_same_run(json_path: Path, n_sub: int | None, seed: int) -> None:
+def _check_same_run(json_path: Path, n_sub: int | None, seed: int, protocol_version: int = 2) -> None:
     """--resume keeps rows (and adds parts to them) only when they ran at this run's integration
-    step and seeds."""
+    step, seeds and protocol version."""
     before = json.loads(json_path.read_text())
-    for key, now, default in (("integration_n_sub", n_sub, None), ("seed", seed, 0)):
+    for key, now, default in (("integration_n_sub", n_sub, None), ("seed", seed, 0), ("protocol_version", protocol_version, 2)):
         if before.get(key, default) != now:
             raise ConfigError(f"--resume: {str(json_path)!r} holds rows run with {key} = {before.get(key, default)}; this "
                               f"run has {now}: rows of different runs do not belong in one table; use another --out")  # fmt: skip

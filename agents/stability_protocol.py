@@ -1,6 +1,8 @@
-"""Evaluation protocol v2, for the ``Bogie/Hunting-v1`` tasks (``bogie evaluate --env Bogie/Hunting-v1``).
+"""Evaluation protocols v3 and v2, for the ``Bogie/Hunting-v1`` tasks (``bogie evaluate --env Bogie/Hunting-v1``).
 
-Protocol v1 (:mod:`bogie_agents.evaluate`) stays the protocol of the ``-v0`` ids. v2 judges a
+Protocol v1 (:mod:`bogie_agents.evaluate`) stays the protocol of the ``-v0`` ids. v3 (the
+default) and v2 (``Settings(version=2)``, ``bogie evaluate --protocol 2``) differ in one rule,
+the flange-contact time's (below); everything else is shared. They judge a
 controller the way a running-stability test judges a vehicle: under the v1 world (sensor
 noise and bias, 10 ms loop delay, force-rate limits, an EN 13848-5 *alert* track), with EN
 14363's running-stability quantities. The definitions, limits and sources are in
@@ -21,7 +23,12 @@ first ``transient_s`` seconds:
   displacement relative to the rail reaches the flange clearance is at most
   ``flange_time_limit`` (0.01). This is the criterion that detects this model's hunting near
   its onset, where ΣY and the frame acceleration stay below EN 14363's limits: the model has no
-  car body and a soft flange (measured in docs/results.md).
+  car body and a soft flange (measured in docs/results.md). **v3** counts the contact time only
+  when the contact is sustained, present in at least ``flange_sustained_fraction`` (0.5) of the
+  assessed time's ``flange_window_s`` (1 s) windows (:func:`sustained_flange_contact`): a
+  hunting cycle touches on every cycle, a rough track at isolated defects. **v2** counts every
+  contact, so on an EN 13848-5 intervention-level track the forced contacts at 40 km/h set
+  columns (docs/studies/hunting_or_forced_contact.md).
 
 **Closed-loop critical speed** of a *column* (a bogie, wheels and faults): for each of
 ``seeds`` seeds (a seed sets the start on the track's 262 km alignment profile, the sensor
@@ -83,7 +90,15 @@ from bogie_env.envs.sensors import SENSOR_NAMES
 from bogie_env.envs.task import HuntingTask
 from bogie_env.params import ConfigError
 
-PROTOCOL_VERSION = 2
+#: The protocol version :class:`Settings` gives by default. v3 judges flange contact only when it
+#: is sustained (see :func:`sustained_flange_contact`); v2 counted every contact, so a track's
+#: forced contacts failed a run (a rough track then set columns far below hunting); v2 stays
+#: runnable (``Settings(version=2)``, ``bogie evaluate --protocol 2``).
+PROTOCOL_VERSION = 3
+PROTOCOL_VERSIONS = (2, 3)
+#: Per version, the share of the assessed time's ``flange_window_s`` windows that must hold a
+#: flange contact for the contact time to count (v2: any).
+FLANGE_SUSTAINED_FRACTION = {2: 0.0, 3: 0.5}
 #: Where the instability frequency f0 is looked for (Hz): above the track's longest
 #: wavelengths at low speed, below the wheelset modes (60-85 Hz) and the 50 Hz Nyquist limit.
 F0_RANGE_HZ = (0.5, 20.0)
@@ -119,8 +134,9 @@ def frame_accel_limit(frame_mass_kg: float) -> float:
 
 @dataclass
 class Settings:
-    """Protocol v2's settings (the defaults are the protocol; tests shrink them)."""
+    """The protocol's settings (the defaults are protocol v3; ``version=2`` gives v2; tests shrink them)."""
 
+    version: int = PROTOCOL_VERSION
     seeds: int = 10
     seed: int = 0
     floor_kmh: float = 40.0
@@ -134,6 +150,10 @@ class Settings:
     window_step_m: float = 10.0
     band_half_width_hz: float = 2.0
     flange_time_limit: float = 0.01
+    #: v3: flange contact counts only when it is sustained: it occurs in at least this share of the
+    #: assessed time's windows of ``flange_window_s`` (None: the version's, FLANGE_SUSTAINED_FRACTION)
+    flange_sustained_fraction: float | None = None
+    flange_window_s: float = 1.0
     conicities: tuple[float, ...] = scenarios.CONICITY_GRID
     degraded: dict[str, dict[str, float]] = field(default_factory=lambda: copy.deepcopy(DEGRADED))
     actuator_faults: bool = True
@@ -153,6 +173,13 @@ class Settings:
     #: sensitivity study may change one, e.g. ``damper_factor`` 1.0001
     nominal_options: dict[str, Any] = field(default_factory=lambda: dict(NOMINAL_OPTIONS))
 
+    def __post_init__(self) -> None:
+        if self.version not in PROTOCOL_VERSIONS:
+            raise ConfigError(f"protocol version = {self.version!r} is not known; known: "
+                              f"{', '.join(map(str, PROTOCOL_VERSIONS))}")  # fmt: skip
+        if self.flange_sustained_fraction is None:
+            self.flange_sustained_fraction = FLANGE_SUSTAINED_FRACTION[self.version]
+
     def grid_kmh(self) -> np.ndarray:
         """The coarse grid: geometric from the floor, the ceiling always included."""
         n = max(1, int(math.ceil(math.log(self.ceiling_kmh / self.floor_kmh) / math.log(self.grid_ratio))))
@@ -171,7 +198,12 @@ class Settings:
         ramp_down = {"ramp_down_decel": (self.ramp_down_decel, 0.05, 2.0, "m/s^2"),
                      "ramp_down_onset_s": (self.ramp_down_onset_s, 0.0, 60.0, "s"),
                      "ramp_down_stride_kmh": (self.ramp_down_stride_kmh, 0.1, 100.0, "km/h")}  # fmt: skip
-        for name, (value, lo, hi, unit) in ramp_down.items():
+        flange = {"flange_sustained_fraction": (self.flange_sustained_fraction, 0.0, 1.0, "(a share of the windows)"),
+                  "flange_window_s": (self.flange_window_s, 0.05, self.duration_s - self.transient_s, "s (at most the assessed time)")}  # fmt: skip
+        if self.version == 2 and self.flange_sustained_fraction != 0.0:
+            raise ConfigError(f"protocol flange_sustained_fraction = {self.flange_sustained_fraction!r} is not allowed "
+                              "with version 2 (v2 counts every flange contact: 0); use version 3")  # fmt: skip
+        for name, (value, lo, hi, unit) in (ramp_down | flange).items():
             if not (math.isfinite(value) and lo <= value <= hi):
                 raise ConfigError(f"protocol {name} = {value!r} is not allowed; allowed: a number in [{lo:g}, {hi:g}] {unit}")
 
@@ -205,6 +237,35 @@ def band_pass(x: np.ndarray, f0: float, half_width: float, fs: float) -> np.ndar
     return signal.sosfiltfilt(sos, np.asarray(x, dtype=float), axis=-1)
 
 
+def flange_occupancy(contact: np.ndarray, dt: float, window_s: float) -> np.ndarray:
+    """The share of the consecutive windows of ``window_s`` (whole windows only) in which a run's
+    wheelsets touch the flange at least once. ``contact`` (N, T): the flange-contact flag per
+    sample, every ``dt``; returns (N,)."""
+    contact = np.asarray(contact, dtype=bool)
+    per = max(1, int(round(window_s / dt)))
+    whole = contact.shape[-1] // per
+    if whole < 1:
+        raise ValueError(f"flange_occupancy: {contact.shape[-1]} samples hold no window of {window_s:g} s")
+    return contact[..., : whole * per].reshape(contact.shape[:-1] + (whole, per)).any(axis=-1).mean(axis=-1)
+
+
+def sustained_flange_contact(flange_time: np.ndarray, occupancy: np.ndarray | None, settings: "Settings") -> np.ndarray:
+    """Which runs fail on flange contact. A run fails when its wheelsets touch the flange for more
+    than ``flange_time_limit`` of the assessed time and (v3) the contact is sustained: it occurs
+    in at least ``flange_sustained_fraction`` of the assessed time's ``flange_window_s`` windows.
+
+    Why: a hunting cycle that reaches the flange touches it on every cycle (2-10 Hz here, so in
+    every second), while a rough track forces contacts at its isolated defects, a few seconds
+    apart (on the EN 13848-5 intervention track at 40-110 km/h the passive bogie touches in at
+    most 40 % of the seconds; hunting, in 80-100 %: docs/results.md, 'Hunting or forced
+    contact'). EN 14363 likewise judges running stability on a sustained oscillation. v2
+    (fraction 0) counts any contact; ``occupancy`` None: every window holds one."""
+    over = np.asarray(flange_time, dtype=float) > settings.flange_time_limit
+    if occupancy is None or not settings.flange_sustained_fraction:
+        return over
+    return over & (np.asarray(occupancy, dtype=float) >= settings.flange_sustained_fraction)
+
+
 @dataclass
 class Assessment:
     """The criterion's quantities for N runs (arrays over the runs)."""
@@ -217,10 +278,11 @@ class Assessment:
     blowup: np.ndarray
     sum_y_limit_n: np.ndarray
     frame_accel_limit: float
+    flange_failed: np.ndarray  # flange contact that fails the run (sustained_flange_contact)
     mean_offset: np.ndarray | None = None  # largest |mean wheelset displacement relative to the rail| / delta
+    flange_occupancy: np.ndarray | None = None  # share of the flange_window_s windows with a contact
 
-
-    def failed_by(self, i: int, flange_time_limit: float) -> list[str]:
+    def failed_by(self, i: int) -> list[str]:
         """Which criteria run i fails."""
         out = []
         if self.blowup[i]:
@@ -229,17 +291,18 @@ class Assessment:
             out.append("sum_y")
         if self.frame_accel_rms[i] > self.frame_accel_limit:
             out.append("frame_accel")
-        if self.flange_time[i] > flange_time_limit:
+        if self.flange_failed[i]:
             out.append("flange_contact")
         return out
 
 
 def assess(history: np.ndarray, flange_time: np.ndarray, blowup: np.ndarray, speeds_ms: np.ndarray, dt: float,
            axle_load_n: np.ndarray, frame_mass_kg: float, settings: Settings,
-           mean_offset: np.ndarray | None = None) -> Assessment:  # fmt: skip
+           mean_offset: np.ndarray | None = None, flange_occupancy: np.ndarray | None = None) -> Assessment:  # fmt: skip
     """The pass criterion for N runs. ``history`` (N, 3, T): ΣY of wheelset 1 and 2 (N) and the
     frame lateral acceleration (m/s²) over the evaluated time, sampled every ``dt``;
-    ``flange_time`` (N,) and ``blowup`` (N,) as measured during it."""
+    ``flange_time`` (N,), ``blowup`` (N,) and ``flange_occupancy`` (N,; :func:`flange_occupancy`,
+    None: contact counts as sustained) as measured during it."""
     n = history.shape[0]
     fs = 1.0 / dt
     sum_y = np.full(n, np.inf)
@@ -257,9 +320,11 @@ def assess(history: np.ndarray, flange_time: np.ndarray, blowup: np.ndarray, spe
         step = max(1, int(round(settings.window_step_m / per_sample)))
         rms = sliding_rms(filtered, window, step).max(axis=-1)
         sum_y[i], accel[i] = rms[:2].max(), rms[2]
-    passed = ~blown & (sum_y <= y_limit) & (accel <= a_limit) & (np.asarray(flange_time) <= settings.flange_time_limit)
+    flange_failed = sustained_flange_contact(flange_time, flange_occupancy, settings)
+    passed = ~blown & (sum_y <= y_limit) & (accel <= a_limit) & ~flange_failed
     return Assessment(passed, sum_y, accel, np.asarray(flange_time, dtype=float), f0, blown, y_limit, a_limit,
-                      None if mean_offset is None else np.asarray(mean_offset, dtype=float))
+                      flange_failed, None if mean_offset is None else np.asarray(mean_offset, dtype=float),
+                      None if flange_occupancy is None else np.asarray(flange_occupancy, dtype=float))
 
 
 def criterion_text(settings: Settings, axle_load_n: float, frame_mass_kg: float) -> dict[str, Any]:
@@ -274,6 +339,10 @@ def criterion_text(settings: Settings, axle_load_n: float, frame_mass_kg: float)
                      f"relative to its limit, in {F0_RANGE_HZ[0]:g}-{F0_RANGE_HZ[1]:g} Hz",
         "flange_time_limit": settings.flange_time_limit,
         "flange_contact": "|wheelset lateral displacement relative to the rail| >= flange clearance, either wheelset",
+        "flange_sustained": (f"the contact time counts only if a contact occurs in at least {settings.flange_sustained_fraction:g} "
+                             f"of the assessed time's {settings.flange_window_s:g} s windows (a hunting cycle touches on "
+                             "every cycle; a rough track at its isolated defects)") if settings.flange_sustained_fraction
+                            else "every contact counts (protocol v2)",
         "blowup": "the env's blowup flag (|y - track| > 0.1 m or integrator failure) or a non-finite state or action",
         "sources": "EN 14363:2016 running stability (SumY: (10 kN + 2 Q0 / 3) / 2; frame: (12 - m+ / 5) / 2)",
     }  # fmt: skip
@@ -422,7 +491,7 @@ class Progress:
         self.last = now
         elapsed = now - self.start
         left = elapsed / done * remaining if done > 0 else float("nan")
-        print(f"[protocol v2] {self.label}: {what}; {elapsed:.0f} s elapsed, ~{left:.0f} s left", file=sys.stderr, flush=True)
+        print(f"[protocol] {self.label}: {what}; {elapsed:.0f} s elapsed, ~{left:.0f} s left", file=sys.stderr, flush=True)
 
 
 #: The ideal world of the ``ramp_down_ideal`` part: a perfect track (no alignment) and sensors
@@ -515,7 +584,7 @@ class Runner:
         steps = int(round(s.duration_s / dt))
         first = int(round(s.transient_s / dt))
         history = np.zeros((n, 3, steps - first), dtype=np.float32)
-        contact = np.zeros(n)
+        contact = np.zeros((n, steps - first), dtype=bool)
         offset = np.zeros((n, 2))
         blowup = np.zeros(n, dtype=bool)
         buffers = {loop: np.zeros((idx.size, 3)) for loop, (idx, _, _) in loops.items()}
@@ -525,7 +594,7 @@ class Runner:
                 if k >= first:
                     running_signals_rows(task.sim.rows, buffers[loop])
                     history[idx, :, k - first] = buffers[loop]
-                    contact[idx] += flange_touching(task)
+                    contact[idx, k - first] = flange_touching(task)
                     offset[idx] += task.relative_lateral_m / task.flange_clearance[:, None]
             if k % 100 == 99:
                 done = self.row_steps_done + n * (k + 1)
@@ -537,7 +606,8 @@ class Runner:
             axle[idx] = [task.scenarios[i].axle_load * task.base_params.Wpa for i in range(idx.size)]
         frame_mass = next(iter(loops.values()))[1].base_params.mb
         mean_offset = np.abs(offset / (steps - first)).max(axis=1)
-        return assess(history, contact / (steps - first), blowup, speeds_kmh / 3.6, dt, axle, frame_mass, s, mean_offset)
+        return assess(history, contact.mean(axis=1), blowup, speeds_kmh / 3.6, dt, axle, frame_mass, s, mean_offset,
+                      flange_occupancy(contact, dt, s.flange_window_s))
 
 
 # ---- the critical-speed search -------------------------------------------------------------------
@@ -566,11 +636,12 @@ def search(runner: Runner, cases: list[Case]) -> dict[str, np.ndarray]:
     first_fail = top_pass + 1  # the grid index where the search brackets the boundary
     failed_by: list[list[str]] = [[] for _ in range(m)]
     sample = {"f0_hz": np.full(m, np.nan), "sum_y_rms_n": np.full(m, np.nan), "frame_accel_rms": np.full(m, np.nan),
-              "flange_time": np.full(m, np.nan), "mean_offset": np.full(m, np.nan)}  # fmt: skip
+              "flange_time": np.full(m, np.nan), "mean_offset": np.full(m, np.nan),
+              "flange_occupancy": np.full(m, np.nan)}  # fmt: skip
     for i in range(m):  # what the failing speed above the boundary fails by
         if first_fail[i] < grid.size:
             r = i * grid.size + first_fail[i]
-            failed_by[i] = result.failed_by(r, s.flange_time_limit)
+            failed_by[i] = result.failed_by(r)
             for key in sample:
                 sample[key][i] = _value(result, key, r)
     round_no = 0
@@ -587,7 +658,7 @@ def search(runner: Runner, cases: list[Case]) -> dict[str, np.ndarray]:
                 lo[i] = mid[a]
             else:
                 hi[i] = mid[a]
-                failed_by[i] = r.failed_by(a, s.flange_time_limit)
+                failed_by[i] = r.failed_by(a)
                 for key in sample:
                     sample[key][i] = _value(r, key, a)
     critical = np.where(np.isnan(lo), grid[0], lo)
@@ -626,6 +697,7 @@ def column_result(cases: list[Case], found: dict[str, Any], idx: np.ndarray, set
                                         "sum_y_rms_kn": round(float(at["sum_y_rms_n"][idx[worst]]) / 1e3, 2),
                                         "frame_accel_rms_m_per_s2": round(float(at["frame_accel_rms"][idx[worst]]), 2),
                                         "flange_time": round(float(at["flange_time"][idx[worst]]), 4),
+                                        "flange_occupancy": round(float(at["flange_occupancy"][idx[worst]]), 3),
                                         # a steady offset (e.g. from sensor bias) rather than an oscillation
                                         "mean_offset_over_clearance": round(float(at["mean_offset"][idx[worst]]), 3)}  # fmt: skip
     if cases[idx[worst]].scenario is not None:
@@ -957,7 +1029,8 @@ def ramp_down_runs(ctx: PartContext, world: Mapping[str, Any] | None = None,
     for w, a in enumerate(starts):
         part = slice(a, a + length)
         r = assess(history[:, :, part], contact[:, part].mean(axis=1), blown_before | blown[:, part].any(axis=1),
-                   np.full(n, speed[part].mean() / 3.6), dt, axle, task.base_params.mb, s)  # fmt: skip
+                   np.full(n, speed[part].mean() / 3.6), dt, axle, task.base_params.mb, s,
+                   flange_occupancy=flange_occupancy(contact[:, part], dt, s.flange_window_s))  # fmt: skip
         failing[:, w] = ~r.passed
         judging.report(f"ramp down: judging window {w + 1}/{starts.size}", w + 1, starts.size - w - 1)
     top_kmh = speed[starts]
@@ -1011,7 +1084,7 @@ def evaluate_policy_v2(source: Any, env_config: Mapping[str, Any] | None = None,
     observation_type = getattr(probe, "observation_type", "sensors")
     name = label or (source if isinstance(source, str) else getattr(probe, "name", type(probe).__name__))
     ctx = PartContext(factory, env_config, settings, observation_type, Progress(str(name), settings.progress))
-    out: dict[str, Any] = {"policy": name, "observation_type": observation_type, "protocol_version": PROTOCOL_VERSION}
+    out: dict[str, Any] = {"policy": name, "observation_type": observation_type, "protocol_version": settings.version}
     for part in parts:
         out.update(registry[part](ctx))
     return out

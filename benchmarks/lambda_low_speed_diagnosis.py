@@ -122,7 +122,7 @@ def run_mode(policy_name: str, gains: str | None, rows: list[tuple[int, float]],
         t_touch = (np.nonzero(touch)[0] + first) * dt
         out.append({
             "seed": seed, "speed_kmh": v, "mode": mode, "passed": bool(a.passed[i]),
-            "failed_by": a.failed_by(i, settings.flange_time_limit),
+            "failed_by": a.failed_by(i),
             "flange_time": round(float(a.flange_time[i]), 4), "f0_hz": round(float(a.f0_hz[i]), 2),
             "sum_y_rms_kn": round(float(a.sum_y_rms_n[i]) / 1e3, 2), "frame_accel_rms": round(float(a.frame_accel_rms[i]), 3),
             "rel_dominant_hz": round(f_y, 2), "rel_rms_over_delta": round(float(np.sqrt(np.mean(y**2))), 3),
