@@ -6,6 +6,7 @@ windows separate them from hunting (docs/studies/hunting_or_forced_contact.md).
 
     python studies/forced_contact_scan.py --level intervention --conicity 0.1 --speeds 40,200,4
     python studies/forced_contact_scan.py --level alert --conicity 0.025 --speeds 330,400,2 --shares 0.5,0.67,0.8
+    python studies/forced_contact_scan.py --level intervention --conicity 0.1 --speeds 40,160,14 --per-speed
 
 Every speed of the grid runs as one fixed-speed protocol row (the protocol's task, seeds, 12 mm
 start and 5 s transient); a seed's value is the upper end of its highest passing range, as the
@@ -42,7 +43,13 @@ def scan(policy: str, level: str, conicity: float, speeds_kmh: np.ndarray, share
             contact[:, k - first] = sp.flange_touching(task)
     flange_time = contact.mean(axis=1)
     occupancy = sp.flange_occupancy(contact, dt, settings.flange_window_s)
-    out: dict = {"policy": policy, "level": level, "conicity": conicity, "seeds": [c.seed for c in cases], "rules": {}}
+    per_speed = {}
+    for j, v in enumerate(speeds_kmh):
+        rows_j = slice(j * len(cases), (j + 1) * len(cases))
+        per_speed[f"{v:g}"] = {"flange_time": np.round(flange_time[rows_j], 3).tolist(),
+                               "occupancy": np.round(occupancy[rows_j], 2).tolist()}  # fmt: skip
+    out: dict = {"policy": policy, "level": level, "conicity": conicity, "seeds": [c.seed for c in cases],
+                 "rules": {}, "per_speed": per_speed}  # fmt: skip
     for share in [0.0] + shares:
         rule = sp.Settings(version=2) if share == 0.0 else sp.Settings(flange_sustained_fraction=share)
         fails = sp.sustained_flange_contact(flange_time, occupancy, rule).reshape(len(speeds_kmh), len(cases)).T
@@ -66,11 +73,16 @@ def main() -> None:
     parser.add_argument("--speeds", default="40,200,4", help="start,stop,step in km/h (numpy.arange)")
     parser.add_argument("--shares", default="0.5,0.67,0.8", help="v3 shares of the 1 s windows to compare")
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--per-speed", action="store_true",
+                        help="also print, per speed and seed, the contact time and the share of 1 s windows with a contact")
     args = parser.parse_args()
     speeds = np.arange(*[float(v) for v in args.speeds.split(",")])
     shares = [float(v) for v in args.shares.split(",") if v]
     result = scan(args.policy, args.level, args.conicity, speeds, shares, args.seeds)
-    print(json.dumps({k: v for k, v in result.items() if k != "rules"}))
+    print(json.dumps({k: v for k, v in result.items() if k not in ("rules", "per_speed")}))
+    if args.per_speed:
+        for speed, row in result["per_speed"].items():
+            print(json.dumps({"speed_kmh": float(speed), **row}))
     for name, rule in result["rules"].items():
         print(json.dumps({"rule": name, **rule}))
 
