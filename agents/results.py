@@ -339,9 +339,11 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
     and ``table.md`` (:func:`v2_table`)."""
     from .stability_protocol import Settings, evaluate_policy_v2
 
+    settings = settings or Settings(seed=seed)
+    if settings.screening:
+        raise ConfigError("bogie results writes the protocol's table: a screening run (--quick) does not belong in it")
     json_path, done = _results_folder(out, resume)
     n_sub = env_config["integration"]["n_sub"]
-    settings = settings or Settings(seed=seed)
     if done:
         _check_same_run(json_path, n_sub, settings.seed, settings.version)
     specs = list(dict.fromkeys(policies))

@@ -169,6 +169,9 @@ class Settings:
     ramp_down_onset_s: float = 2.0  # passive hunting at the ceiling before the controller is switched on
     ramp_down_stride_kmh: float = 2.0  # a window of the ramp (duration_s - transient_s long) starts every this many km/h
     progress: bool = True
+    #: a screening run (:func:`screening_settings`): fewer seeds and draws, marked in every result,
+    #: never written into a results table
+    screening: bool = False
     #: the scenario quantities every row pins (a column's own options override them); a
     #: sensitivity study may change one, e.g. ``damper_factor`` 1.0001
     nominal_options: dict[str, Any] = field(default_factory=lambda: dict(NOMINAL_OPTIONS))
@@ -206,6 +209,18 @@ class Settings:
         for name, (value, lo, hi, unit) in (ramp_down | flange).items():
             if not (math.isfinite(value) and lo <= value <= hi):
                 raise ConfigError(f"protocol {name} = {value!r} is not allowed; allowed: a number in [{lo:g}, {hi:g}] {unit}")
+
+
+#: What a screening run (``bogie evaluate --quick``) changes: 3 seeds instead of 10, 3 worst-case
+#: draws instead of 10, bisection to 4 km/h instead of 2. The criterion, columns and runs are the
+#: protocol's, so a screening value is an upper bound of the protocol's lowest seed in spirit but
+#: not in fact (other seeds): it ranks candidates, it does not replace the protocol.
+SCREENING: dict[str, Any] = {"seeds": 3, "worst_case_draws": 3, "tol_kmh": 4.0}
+
+
+def screening_settings(**overrides: Any) -> Settings:
+    """The protocol's settings for a screening run (:data:`SCREENING`, marked ``screening``)."""
+    return Settings(**{**SCREENING, **overrides, "screening": True})
 
 
 # ---- the pass criterion -----------------------------------------------------------------------
@@ -1085,6 +1100,9 @@ def evaluate_policy_v2(source: Any, env_config: Mapping[str, Any] | None = None,
     name = label or (source if isinstance(source, str) else getattr(probe, "name", type(probe).__name__))
     ctx = PartContext(factory, env_config, settings, observation_type, Progress(str(name), settings.progress))
     out: dict[str, Any] = {"policy": name, "observation_type": observation_type, "protocol_version": settings.version}
+    if settings.screening:
+        out["screening"] = (f"screening, not the protocol: {settings.seeds} seeds, {settings.worst_case_draws} worst-case "
+                            f"draws, bisection to {settings.tol_kmh:g} km/h")  # fmt: skip
     for part in parts:
         out.update(registry[part](ctx))
     return out
