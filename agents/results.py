@@ -333,10 +333,11 @@ def v2_summary(result: dict) -> str:
 
 def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
            parts: tuple[str, ...] = V2_RESULTS_PARTS, trusted: bool = False, backend: str = "local",
-           address: str | None = None, workers: int | None = None, settings=None) -> dict:  # fmt: skip
+           address: str | None = None, workers: int | None = None, settings=None, docs: tuple = ()) -> dict:  # fmt: skip
     """Protocol v2 for ``policies`` into ``out``: ``results.json`` (rewritten atomically after
-    each controller; ``resume`` keeps those already in it and runs only the ``parts`` they lack)
-    and ``table.md`` (:func:`v2_table`)."""
+    each controller; ``resume`` keeps those already in it and runs only the ``parts`` they lack),
+    then :func:`scoreboard.render`: the scores, ``table.md`` (the headline table), ``table_full.md``
+    (:func:`v2_table`), the figure, and the generated blocks of ``docs``."""
     from .stability_protocol import Settings, evaluate_policy_v2
 
     json_path, done = _results_folder(out, resume)
@@ -366,9 +367,10 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
         rows[spec] = {**rows.get(spec, {}), **result, "policy": spec}
         write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed))
     write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed))
-    results = [rows[spec] for spec in specs]
-    write_text_atomic(out / "table.md", v2_table(results, n_sub))
-    return {"policies": results}
+    from .scoreboard import render
+
+    payload = render(json_path, docs)
+    return {"policies": [r for r in payload["policies"] if r["policy"] in specs]}
 
 
 def _ordered(rows: dict[str, dict], specs: list[str]) -> list[dict]:
