@@ -294,12 +294,12 @@ def v2_table(results: list[dict], n_sub: int | None = None) -> str:
                  "fails_below_kmh in results.json).")  # fmt: skip
     if any(n.startswith("hunting ends") for n in names):
         notes.append("Hunting ends λ: the speed where hunting, fully developed at the ceiling, stops once the controller is "
-                     "switched on and the speed ramps down (the part ramp_down, lowest of the seeds; docs/results.md, "
-                     "'Recovery from hunting'; every conicity in results.json).")  # fmt: skip
+                     "switched on and the speed ramps down (the part ramp_down, lowest of the seeds; "
+                     "docs/studies/ramp_down.md; every conicity in results.json).")  # fmt: skip
     if any(n.startswith("ideal track") for n in names):
         notes.append("Ideal track: the same ramp-down on a perfect track with noise-free sensors (the part ramp_down_ideal): "
                      "where the closed loop's hunting stops failing the criterion when nothing random knocks the bogie off "
-                     "its cycle; insensitive to the integration step (docs/results.md, 'On the ideal track').")  # fmt: skip
+                     "its cycle; insensitive to the integration step (docs/studies/ramp_down_ideal.md).")  # fmt: skip
     if dropped:
         notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
     curving = [{**r["curving"], "policy": r["policy"]} for r in results if r.get("curving")]

@@ -22,7 +22,8 @@ a lower bound (written "≥").
 NAME is one of :data:`BLOCKS`; :func:`refresh_text` rewrites the block from the named file. A
 number quoted in prose is tagged ``358.6<!-- rj:passive/nominal/kmh -->``: the number must equal
 that value of ``docs/results/v1/results.json`` at the number's own precision (a path's first
-part is a policy's name; ``A - B`` quotes a difference; ``rj@FILE:PATH`` reads another file).
+part is a policy's name; ``A - B`` quotes a difference, ``A * 1000`` a scaled value; ``rj@FILE:PATH``
+reads another file).
 """
 
 from __future__ import annotations
@@ -223,6 +224,8 @@ def conicity_figure(payload: dict, path: Path) -> Path:
     for r in rows:
         by = {float(lam): e for lam, e in r["by_conicity"].items() if _is_column(e)}
         lams = sorted(by)
+        if not lams:
+            continue
         kmh = [by[lam]["kmh"] for lam in lams]
         ceiling = ceiling or by[lams[0]].get("ceiling_kmh")
         if r["policy"] == "passive":
@@ -309,12 +312,13 @@ def lookup(payload: dict, path: str):
 
 
 def tag_value(payload: dict, expression: str) -> float:
-    """``PATH`` or ``PATH - PATH``."""
-    terms = [t for t in expression.split(" - ")]
+    """``PATH``, ``PATH - PATH``, either times a factor (``PATH * 1000``: seconds quoted in ms)."""
+    expression, _, factor = expression.partition(" * ")
+    terms = expression.split(" - ")
     value = float(lookup(payload, terms[0]))
     for term in terms[1:]:
         value -= float(lookup(payload, term))
-    return value
+    return value * float(factor or 1)
 
 
 def tag_mismatches(text: str, root: Path) -> list[str]:
