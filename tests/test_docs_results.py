@@ -164,3 +164,20 @@ def test_render_only_writes_the_folder_and_the_docs_blocks_without_running(tmp_p
     assert (out / "table_full.md").read_text() == sb.full_table(written)
     assert (out / sb.FIGURE).stat().st_size > 10_000
     assert "stale" not in doc.read_text() and sb.headline_table(written) in doc.read_text()
+
+
+def test_evaluate_puts_the_score_first_against_the_passive_row_of_its_run(monkeypatch, capsys):
+    import bogie_agents.stability_protocol as sp
+    from bogie_agents.cli import main as cli_main
+
+    search = {"floor_kmh": 40.0, "ceiling_kmh": 600.0, "seeds": 10, "tol_kmh": 2.0}
+    rows = {name: {**_row(name, scale), "search": search} for name, scale in (("passive", 1.0), ("skyhook", 1.25))}
+    monkeypatch.setattr(sp, "evaluate_policy_v2", lambda spec, *a, **k: copy.deepcopy(rows[spec]))
+    assert cli_main(["evaluate", "--policy", "passive", "--policy", "skyhook", "--parts", "critical", "--json"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert list(payload)[0] == "scores"
+    assert payload["scores"] == {"passive": {"value": 1.0, "at_least": False}, "skyhook": {"value": 1.25, "at_least": False}}
+    assert cli_main(["evaluate", "--policy", "skyhook", "--parts", "critical"]) == 0  # no passive row: no score line
+    assert "score (" not in capsys.readouterr().out
+    assert cli_main(["evaluate", "--policy", "passive", "--policy", "skyhook", "--parts", "critical"]) == 0
+    assert "skyhook 1.25" in capsys.readouterr().out
