@@ -75,11 +75,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
     return 0
 
 
-def policy_options(func):
+def policy_options(func, required: bool = True):
     """--trust-policy, --policy (repeatable) and --workers: the controllers to run and where."""
     func = argument("--workers", type=int, default=None,
                     help="CPUs of the local Ray cluster that --backend ray starts (default: all)")(func)  # fmt: skip
-    func = argument("--policy", action="append", required=True,
+    func = argument("--policy", action="append", required=required,
                     help="passive | skyhook | lqr | lqg | robust_damping | robust_steering | pretrained | PATH (run folder or SB3 .zip, needs "
                          "--trust-policy); repeatable")(func)  # fmt: skip
     return argument("--trust-policy", action="store_true",
@@ -133,6 +133,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         results, protocol_version = _evaluate_v2(args, env_config), protocol_settings(args).version
     payload = {"env_id": args.env, "env_version": env_version, "protocol_version": protocol_version,
                "integration_n_sub": env_config["integration"]["n_sub"], "policies": results}  # fmt: skip
+    if protocol_version >= 2:
+        from .scoreboard import with_scores
+
+        payload = with_scores(payload)  # the score against the passive row of this run (none without one)
     if args.out:
         write_text_atomic(Path(args.out), json.dumps(payload, indent=2, default=float))
     if args.json:
@@ -141,9 +145,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         _print_v1(results)
     else:
         from .results import v2_summary
+        from .scoreboard import score_text
 
-        for r in results:
+        for r in payload["policies"]:
             print(v2_summary(r))
+        if any(payload["scores"].values()):
+            print("score (mean over the critical columns of the speed relative to passive's, docs/results.md): "
+                  + ", ".join(f"{name} {score_text(s)}" for name, s in payload["scores"].items()))  # fmt: skip
     return 0
 
 
@@ -324,12 +332,31 @@ def cmd_margins(args: argparse.Namespace) -> int:
           help="env id (its version picks the protocol: -v1 ids protocol v2 with critical, cost, margins, curving, "
                "ramp_down and ramp_down_ideal; -v0 ids protocol v1 with the ramp plots)")
 @argument("--out", required=True, help="output folder, e.g. docs/results")
-@policy_options
+@argument("--docs", action="append", default=[], metavar="FILE",
+          help="markdown file whose generated blocks (<!-- results:NAME OUT/results.json -->) to refresh from "
+               "OUT/results.json; repeatable (v1 env)")
+@argument("--render-only", action="store_true",
+          help="run nothing: rewrite OUT/results.json's scores, table.md, table_full.md, the figure and the --docs "
+               "blocks from the existing OUT/results.json (v1 env)")
+@(lambda func: policy_options(func, required=False))
 @backend_options
 @bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
     from .results import run, run_v2
 
+    if args.render_only:
+        from .scoreboard import render
+
+        if args.env.rsplit("-", 1)[-1] == "v0":
+            raise ConfigError("--render-only renders protocol v2's results (the -v1 ids)")
+        json_path = Path(args.out) / "results.json"
+        if not json_path.is_file():
+            raise ConfigError(f"--render-only: {str(json_path)!r} does not exist; run bogie results without it first")
+        render(json_path, [Path(d) for d in args.docs])
+        print((Path(args.out) / "table.md").read_text())
+        return 0
+    if not args.policy:
+        raise ConfigError("bogie results: give at least one --policy (or --render-only)")
     check_backend_args(args)
     _check_workers(args)
     env_config = with_substeps(env_config_from_args(args, _env_variant(args.env)), args.n_sub)
@@ -342,7 +369,7 @@ def cmd_results(args: argparse.Namespace) -> int:
     else:
         payload = run_v2(args.policy, env_config, Path(args.out), args.resume, args.seed, trusted=args.trust_policy,
                          backend=args.backend, address=args.address, workers=args.workers,
-                         settings=protocol_settings(args))  # fmt: skip
+                         settings=protocol_settings(args), docs=tuple(Path(d) for d in args.docs))  # fmt: skip
     print((Path(args.out) / "table.md").read_text())
     return 0 if payload else 1
 

@@ -294,12 +294,12 @@ def v2_table(results: list[dict], n_sub: int | None = None) -> str:
                  "fails_below_kmh in results.json).")  # fmt: skip
     if any(n.startswith("hunting ends") for n in names):
         notes.append("Hunting ends λ: the speed where hunting, fully developed at the ceiling, stops once the controller is "
-                     "switched on and the speed ramps down (the part ramp_down, lowest of the seeds; docs/results.md, "
-                     "'Recovery from hunting'; every conicity in results.json).")  # fmt: skip
+                     "switched on and the speed ramps down (the part ramp_down, lowest of the seeds; "
+                     "docs/studies/ramp_down.md; every conicity in results.json).")  # fmt: skip
     if any(n.startswith("ideal track") for n in names):
         notes.append("Ideal track: the same ramp-down on a perfect track with noise-free sensors (the part ramp_down_ideal): "
                      "where the closed loop's hunting stops failing the criterion when nothing random knocks the bogie off "
-                     "its cycle; insensitive to the integration step (docs/results.md, 'On the ideal track').")  # fmt: skip
+                     "its cycle; insensitive to the integration step (docs/studies/ramp_down_ideal.md).")  # fmt: skip
     if dropped:
         notes.append(f"Left out (every controller at the ceiling): {', '.join(dropped)}.")
     curving = [{**r["curving"], "policy": r["policy"]} for r in results if r.get("curving")]
@@ -333,10 +333,11 @@ def v2_summary(result: dict) -> str:
 
 def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = False, seed: int = 0,
            parts: tuple[str, ...] = V2_RESULTS_PARTS, trusted: bool = False, backend: str = "local",
-           address: str | None = None, workers: int | None = None, settings=None) -> dict:  # fmt: skip
+           address: str | None = None, workers: int | None = None, settings=None, docs: tuple = ()) -> dict:  # fmt: skip
     """Protocol v2 for ``policies`` into ``out``: ``results.json`` (rewritten atomically after
-    each controller; ``resume`` keeps those already in it and runs only the ``parts`` they lack)
-    and ``table.md`` (:func:`v2_table`)."""
+    each controller; ``resume`` keeps those already in it and runs only the ``parts`` they lack),
+    then :func:`scoreboard.render`: the scores, ``table.md`` (the headline table), ``table_full.md``
+    (:func:`v2_table`), the figure, and the generated blocks of ``docs``."""
     from .stability_protocol import Settings, evaluate_policy_v2
 
     settings = settings or Settings(seed=seed)
@@ -368,9 +369,10 @@ def run_v2(policies: list[str], env_config: dict, out: Path, resume: bool = Fals
         rows[spec] = {**rows.get(spec, {}), **result, "policy": spec}
         write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed, settings.version))
     write_text_atomic(json_path, _v2_payload(_ordered(rows, specs), n_sub, settings.seed, settings.version))
-    results = [rows[spec] for spec in specs]
-    write_text_atomic(out / "table.md", v2_table(results, n_sub))
-    return {"policies": results}
+    from .scoreboard import render
+
+    payload = render(json_path, docs)
+    return {"policies": [r for r in payload["policies"] if r["policy"] in specs]}
 
 
 def _ordered(rows: dict[str, dict], specs: list[str]) -> list[dict]:

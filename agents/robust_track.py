@@ -5,7 +5,7 @@ conicity 0.1 and 120-270 km/h that design moves the bogie's kinematic (track-fol
 1.4-2.2 Hz, i.e. 20-32 m, inside the alert track's 3-25 m band, and the wheelsets stop
 following 20-25 m alignment: on the alert track they touch the flange 1-3 % of the time
 (protocol v2's limit: 1 %), and the wheelset-yaw channels saturate fighting the track-following
-yaw (docs/results.md, "What limits conicity 0.1").
+yaw (docs/studies/conicity_0.1.md).
 
 Stage 2 (:func:`retune_track`) re-tunes the rows of ``TrackSettings.speeds_kmh`` from stage 1's
 table (Nelder-Mead per row, warm-started from it) on
@@ -22,7 +22,7 @@ step). Rows outside ``speeds_kmh`` are kept. The track weight is larger on the r
 180 km/h, where the alert track forces flange contact at 150-200 km/h on some seeds; on the rows
 from 210 km/h a larger weight lowers the damping that keeps the saturated limit cycle at
 230-250 km/h away (weights and wavelengths chosen on the protocol's conicity-0.1 column over
-seeds 20-79, docs/results.md "Held-out seeds").
+seeds 20-79, docs/studies/floors_and_held_out_seeds.md).
 
 Then it sets the command lead (:func:`bogie_agents.robust.lead_command`): ``lead_s`` at the
 rows of ``lead_speeds_kmh``, zero elsewhere (interpolated linearly in speed, so it ramps in

@@ -3,8 +3,8 @@ the floor any numba program pays on the same host.
 
     python benchmarks/bench_curving_cli.py [--runs 7] [--json] [--no-bytecode-cache]
 
-The command runs as the ``bogie`` console script does (``python -m bogie_agents``) with this
-tree on PYTHONPATH (and its ``.shim``, docs/performance.md), once to warm the kernel cache, then
+The command runs as the ``bogie`` console script does (``python -m bogie_agents``, the installed
+package: ``make`` installs this tree editable into .venv), once to warm the kernel cache, then
 ``--runs`` times. Warm includes Python's bytecode cache, as an installed package has it (pip
 compiles it at install): both programs run with ``PYTHONDONTWRITEBYTECODE`` removed from their
 environment, so the warm-up writes the tree's ``__pycache__/*.pyc`` (ignored by git, beside the
@@ -56,9 +56,8 @@ def summary(times: list[tuple[float, float]]) -> dict:
 
 def measure(runs: int, bytecode_cache: bool = True) -> dict:
     """Warm both, then time them alternately ``runs`` times each."""
-    paths = [str(TREE), str(TREE / ".shim"), os.environ.get("PYTHONPATH", "")]
     base_env = {k: v for k, v in os.environ.items() if not (bytecode_cache and k == "PYTHONDONTWRITEBYTECODE")}
-    command_env = dict(base_env, PYTHONPATH=os.pathsep.join(p for p in paths if p))
+    command_env = dict(base_env)
     with tempfile.TemporaryDirectory() as folder:
         floor_dir = Path(folder)
         (floor_dir / "floor_kernel.py").write_text(FLOOR_MODULE)

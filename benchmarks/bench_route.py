@@ -11,7 +11,7 @@ also gives the cost per substep. v1's own ramp (100 -> 600 km/h) is cheaper per 
 constant 250 km/h (fewer saturated contacts at low speed), so the like-for-like reference is
 v1 at a constant 250 km/h (``v1 const``).
 
-    PYTHONPATH=. python benchmarks/bench_route.py [--seconds 5] [--sizes 1 1024] [--repeats 2]
+    python benchmarks/bench_route.py [--seconds 5] [--sizes 1 1024] [--repeats 2]
 """
 
 from __future__ import annotations

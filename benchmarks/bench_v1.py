@@ -5,7 +5,7 @@ zero actions for at least ``--seconds`` after a warm-up, episodes reset in place
 v1 integrates with more substeps (accuracy criterion), adds the sensor model and the
 scenario's actuator health; the ratio is the cost of those.
 
-    PYTHONPATH=. python benchmarks/bench_v1.py
+    python benchmarks/bench_v1.py
 """
 
 from __future__ import annotations

@@ -2,8 +2,9 @@
 
     python benchmarks/curving_startup_compare.py BEFORE_TREE AFTER_TREE [RUNS]
 
-Each tree is a checkout with ``.shim/bogie_agents`` (docs/performance.md); the command runs with
-that tree on PYTHONPATH, once in each tree to warm its kernel cache, then RUNS times (default 8)
+Each tree is a plain checkout: the command runs with that tree's ``bogie_env`` and its ``agents/``
+(linked as ``bogie_agents`` in a temporary folder) first on PYTHONPATH, ahead of any installed
+copy, once in each tree to warm its kernel cache, then RUNS times (default 8)
 alternating between the trees (and which goes first), so a busy host slows both alike. Prints the median and minimum
 wall time and the child's user and system CPU (``getrusage``).
 """
@@ -15,14 +16,25 @@ import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 COMMAND = ["-m", "bogie_agents", "curving", "--radius", "7000", "--cant", "0.15", "--speed", "350", "--json"]
 
 
-def run(tree: str) -> tuple[float, float, float]:
-    """Wall, user and system seconds of one run of the command with ``tree`` on the path."""
-    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/.shim")
+def tree_path(tree: str, links: Path) -> str:
+    """PYTHONPATH for ``tree``: the tree (``bogie_env``) and a folder holding ``bogie_agents`` -> its ``agents/``."""
+    folder = links / str(abs(hash(tree)))
+    folder.mkdir(exist_ok=True)
+    if not (folder / "bogie_agents").exists():
+        (folder / "bogie_agents").symlink_to(Path(tree).resolve() / "agents")
+    return os.pathsep.join([str(Path(tree).resolve()), str(folder)])
+
+
+def run(tree: str, path: str) -> tuple[float, float, float]:
+    """Wall, user and system seconds of one run of the command with ``tree`` (``path``) on the path."""
+    env = dict(os.environ, PYTHONPATH=path)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     subprocess.run([sys.executable, *COMMAND], env=env, stdout=subprocess.DEVNULL, check=True)
@@ -34,12 +46,14 @@ def run(tree: str) -> tuple[float, float, float]:
 def main(argv: list[str]) -> None:
     """Warm both trees, time them interleaved, print one line per tree."""
     trees, runs = argv[:2], int(argv[2]) if len(argv) > 2 else 8
-    for tree in trees:
-        run(tree)
-    times: dict[str, list[tuple[float, float, float]]] = {tree: [] for tree in trees}
-    for round_ in range(runs):
-        for tree in trees if round_ % 2 == 0 else trees[::-1]:  # alternate which tree goes first
-            times[tree].append(run(tree))
+    with tempfile.TemporaryDirectory() as links:
+        paths = {tree: tree_path(tree, Path(links)) for tree in trees}
+        for tree in trees:
+            run(tree, paths[tree])
+        times: dict[str, list[tuple[float, float, float]]] = {tree: [] for tree in trees}
+        for round_ in range(runs):
+            for tree in trees if round_ % 2 == 0 else trees[::-1]:  # alternate which tree goes first
+                times[tree].append(run(tree, paths[tree]))
     for tree in trees:
         wall, user, system = zip(*times[tree])
         print(f"{tree}: wall median {statistics.median(wall):.3f} min {min(wall):.3f} s | user median "

@@ -3,7 +3,7 @@ loop's response to a sinusoidal track alignment (the wheelsets' displacement rel
 per unit alignment), from the sampled linear loop of :mod:`bogie_agents.margins` (bogie, actuator
 lags, loop delay, sensor filters, the controller's own linear model).
 
-    PYTHONPATH=. python benchmarks/lambda_linear_modes.py --policy passive --policy robust_damping \
+    python benchmarks/lambda_linear_modes.py --policy passive --policy robust_damping \
         --policy lqr --conicity 0.1 --speeds 120:260:10 [--gains FILE] [--wavelengths 10,15,20,24,30,40]
 
 Modes: eigenvalues z of the closed-loop matrix, s = ln z / dt; oscillatory lateral modes (the

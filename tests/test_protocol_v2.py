@@ -692,7 +692,7 @@ def test_results_v2_records_the_step_and_resumes_only_at_it(tmp_path, capsys):
     fine = make_config({"integration": {"n_sub": 20}}, variant="v1")
     results.run_v2(["passive"], fine, tmp_path, settings=settings, parts=("critical",))
     assert json.loads((tmp_path / "results.json").read_text())["integration_n_sub"] == 20
-    assert "RK4 at 20 substeps per env step" in (tmp_path / "table.md").read_text()
+    assert "RK4 at 20 substeps per env step" in (tmp_path / "table_full.md").read_text()
     with pytest.raises(ConfigError, match="integration_n_sub = 20; this run has None"):
         results.run_v2(["passive"], make_config(variant="v1"), tmp_path, resume=True, settings=settings, parts=("critical",))
     assert cli_main(["results", "--env", "Bogie/Hunting-v0", "--policy", "passive", "--n-sub", "20",
