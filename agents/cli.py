@@ -111,6 +111,9 @@ PROTOCOL_HELP = ("protocol version for the -v1 ids: 3 (default; flange contact c
                "track with noise-free sensors) and any registered part; protocol v1 (-v0 ids): critical, ramp, effort, robustness (default: all), margins")
 @argument("--seed", type=SEED, default=0, help="seed of the protocol's random starts and tracks")
 @argument("--protocol", type=int, choices=(2, 3), default=None, help=PROTOCOL_HELP)
+@argument("--quick", action="store_true",
+          help="-v1 ids: a screening run (3 seeds, 3 worst-case draws, bisection to 4 km/h; default part critical) for "
+               "ranking candidates in about a minute; marked 'screening' in the JSON, never the protocol's table")
 @argument("--n-sub", type=bounded(int, 1, 1000), default=None,
           help="RK4 substeps per env step for every run of the protocol (default: the env's own step; v1: 10). "
                "40 runs the v1 protocol with the integration converged (docs/results.md, 'Step convergence')")
@@ -133,6 +136,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         results, protocol_version = _evaluate_v2(args, env_config), protocol_settings(args).version
     payload = {"env_id": args.env, "env_version": env_version, "protocol_version": protocol_version,
                "integration_n_sub": env_config["integration"]["n_sub"], "policies": results}  # fmt: skip
+    if args.quick:
+        payload = {"screening": results[0]["screening"], **payload}
     if protocol_version >= 2:
         from .scoreboard import with_scores
 
@@ -156,15 +161,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def protocol_settings(args: argparse.Namespace):
-    """The -v1 ids' protocol settings of ``--protocol`` and ``--seed``."""
-    from .stability_protocol import PROTOCOL_VERSION, Settings
+    """The -v1 ids' protocol settings of ``--protocol``, ``--seed`` and (bogie evaluate) ``--quick``."""
+    from .stability_protocol import PROTOCOL_VERSION, Settings, screening_settings
 
-    return Settings(version=args.protocol or PROTOCOL_VERSION, seed=args.seed, progress=True)
+    make = screening_settings if getattr(args, "quick", False) else Settings
+    return make(version=args.protocol or PROTOCOL_VERSION, seed=args.seed, progress=True)
 
 
 def _refuse_protocol_for_v0(args: argparse.Namespace) -> None:
     if args.protocol is not None:
         raise ConfigError(f"--protocol {args.protocol} chooses the -v1 ids' protocol; -v0 ids run protocol v1")
+    if getattr(args, "quick", False):
+        raise ConfigError("--quick is a screening run of the -v1 ids' protocol; -v0 ids run protocol v1")
 
 
 def with_substeps(env_config: dict, n_sub: int | None) -> dict:
@@ -200,7 +208,7 @@ def _evaluate_v2(args: argparse.Namespace, env_config: dict) -> list[dict]:
     from .policies import load_policy
     from .stability_protocol import available_parts, evaluate_policy_v2
 
-    parts = _requested_parts(args, set(available_parts()), _default_v2_parts())
+    parts = _requested_parts(args, set(available_parts()), "critical" if args.quick else _default_v2_parts())
     for spec in args.policy:
         load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any run
     settings = protocol_settings(args)

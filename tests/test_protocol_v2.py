@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -536,6 +537,32 @@ def test_cli_protocol_option_runs_v2_with_its_criterion(capsys, monkeypatch):
     assert payload["policies"][0]["criterion"]["flange_sustained"] == "every contact counts (protocol v2)"
     assert cli_main(["evaluate", "--env", "Bogie/Hunting-v0", "--protocol", "3", "--policy", "passive"]) == 2
     assert "--protocol 3 chooses the -v1 ids' protocol" in capsys.readouterr().err
+
+
+def test_cli_quick_is_a_marked_screening_with_a_score_per_policy(capsys, monkeypatch):
+    """``bogie evaluate --quick``: the screening settings (3 seeds, 3 draws, 4 km/h), only the
+    critical part, 'screening' in the JSON and in every row, a score per policy against passive."""
+    from bogie_agents.cli import main as cli_main
+
+    assert sp.screening_settings().seeds == 3 and sp.screening_settings().worst_case_draws == 3
+    real, made = sp.screening_settings, []
+
+    def screening(**kw):
+        made.append(real(**{**tiny_kwargs(seeds=1, columns=("nominal", "conicity:0.1")), **kw}))
+        return made[-1]
+
+    monkeypatch.setattr(sp, "screening_settings", screening)
+    assert cli_main(["evaluate", "--quick", "--policy", "passive", "--policy", "skyhook", "--json"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert made[-1].screening and payload["screening"].startswith("screening, not the protocol")
+    assert all(row["screening"] == payload["screening"] and "cost" not in row for row in payload["policies"])
+    assert payload["scores"]["passive"]["value"] == 1.0 and payload["scores"]["skyhook"]["value"] > 1.0
+    assert cli_main(["evaluate", "--env", "Bogie/Hunting-v0", "--quick", "--policy", "passive"]) == 2
+    assert "--quick is a screening run" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match="screening run"):
+        from bogie_agents import results
+
+        results.run_v2(["passive"], make_config(variant="v1"), Path("unused"), settings=real())
 
 
 def test_results_resume_refuses_rows_of_another_protocol_version(tmp_path):
