@@ -51,7 +51,7 @@ Entry point: :func:`margins_table` ``(policy, env_config, speeds_kmh, conicity=N
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -61,12 +61,12 @@ from bogie_env.dynamics import N_INPUTS, N_STATES, BogieModel, state_index
 from bogie_env.envs import task as T
 from bogie_env.envs.config import bogie_params, merge_config
 from bogie_env.envs.scenario import RANGES
-from bogie_env.envs.sensors import N_SENSED, S_FILTER_WEIGHT, SENSOR_NAMES, sensor_table
+from bogie_env.envs.sensors import SENSOR_NAMES
 from bogie_env.envs.task import STATE_SCALES
 from bogie_env.params import ConfigError
+from bogie_env.sampled_plant import PlantModel, actuated, sampled_plant, sensor_filters
 from bogie_env.stability import KMH
 
-from .controllers import discretize
 from .linear_models import (ControllerModel, finite_difference_jacobian, residual_controller_model, sb3_action,  # noqa: F401
                             sb3_action_function, sb3_controller_model, sb3_jacobian_autograd, static_model)  # fmt: skip
 
@@ -80,152 +80,6 @@ DEFAULT_SPEEDS_KMH = (300.0, 350.0, 400.0, 450.0, 500.0)
 # =============================================================================================
 # Plant: bogie + actuators + delay + sensors, discrete at dt
 # =============================================================================================
-
-
-@dataclass
-class PlantModel:
-    """The sampled plant from the normalised command u (n_act) to the observation y.
-
-    State ``[x (20), F (n_act), command registers, sensor filters]``: the channels' command
-    shift registers (``delay_steps[j]`` states for channel j, the oldest feeding the lag) and
-    the anti-alias filter states of the measured observation entries (``filter_rows``), each
-    holding the previous sample's filtered value. ``y_n = C s_n`` (no feedthrough: the
-    observation of step n is taken at the end of the previous interval).
-    """
-
-    a: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    dt: float
-    speed: float  # m/s
-    x_eq: np.ndarray  # (20,) equilibrium state
-    force_eq: np.ndarray  # (n_act,) equilibrium channel forces
-    active: list[int]
-    max_force: np.ndarray
-    bandwidth: np.ndarray  # rad/s
-    delay_steps: tuple[int, ...]  # per active channel
-    observation_type: str
-    include_actuators: bool
-    model: BogieModel = field(repr=False)
-    filter_rows: tuple[int, ...] = ()  # observation entries passed through the sensor filter
-    filter_weight: np.ndarray = field(default_factory=lambda: np.zeros(0))  # weight of the new sample
-    c_clean: np.ndarray | None = None  # the observation before the sensor filters
-    filter_start: int = 0  # index of the first filter state
-    a_cont: np.ndarray | None = field(default=None, repr=False)  # continuous bogie + lag, for fractional delays
-    b_cont: np.ndarray | None = field(default=None, repr=False)
-    #: which of the 20 bogie states the plant's first states are (None: all 20, in order)
-    bogie_states: tuple[int, ...] | None = None
-
-    def with_delay_s(self, extra_s) -> "PlantModel":
-        """The plant with ``extra_s`` (scalar: every channel; or per channel) seconds more
-        command delay, not necessarily whole steps: the exact sampled model of a held command
-        that reaches the lag ``tau`` later, i.e. switches to the new command a fraction ``f`` of
-        the interval late (``x+ = Phi x + Gamma_a u_{n-k-1} + Gamma_b u_{n-k}``, ``Gamma_b`` the
-        ZOH integral over the last ``(1 - f) dt``, ``Gamma_a`` that over the first ``f dt``
-        carried to the end). Built from the plant of :func:`plant_model` (not from an extended one)."""
-        if self.a_cont is None:
-            raise ValueError("with_delay_s needs a plant from plant_model (its continuous part)")
-        from scipy.linalg import expm
-
-        extra = np.broadcast_to(np.asarray(extra_s, dtype=float), (self.n_act,))
-        if np.any(~np.isfinite(extra)) or np.any(extra < 0):
-            raise ValueError(f"extra_s = {extra_s!r} must be finite and >= 0")
-        dt, n, m = self.dt, self.a_cont.shape[0], self.n_act
-        total = np.array(self.delay_steps) + extra / dt  # steps
-        k = np.floor(total + 1e-9).astype(int)
-        f = np.where(total - k > 1e-9, total - k, 0.0)
-        lengths = k + (f > 0)
-        n_f = len(self.filter_rows)
-        n_all = n + int(lengths.sum()) + n_f
-        phi, _ = discretize(self.a_cont, self.b_cont, dt)
-        a = np.zeros((n_all, n_all))
-        b = np.zeros((n_all, m))
-        a[:n, :n] = phi
-
-        def zoh(t: float) -> tuple[np.ndarray, np.ndarray]:
-            """exp(A t) and the ZOH input integral over t."""
-            e_t, g_t = discretize(self.a_cont, self.b_cont, t) if t > 0 else (np.eye(n), np.zeros((n, m)))
-            return e_t, g_t
-
-        pos = n
-        for j in range(m):
-            e_late, g_late = zoh((1.0 - f[j]) * dt)
-            _, g_early = zoh(f[j] * dt)
-            terms = {int(k[j]): g_late[:, j]}  # u_{n-k}: the last (1 - f) dt
-            if f[j] > 0:
-                terms[int(k[j]) + 1] = e_late @ g_early[:, j]  # u_{n-k-1}: the first f dt
-            if lengths[j]:
-                b[pos, j] = 1.0
-                for i in range(1, lengths[j]):
-                    a[pos + i, pos + i - 1] = 1.0
-            for age, column in terms.items():
-                if age == 0:
-                    b[:n, j] += column
-                else:
-                    a[:n, pos + age - 1] += column
-            pos += int(lengths[j])
-        # the observation and the filters: core and filter columns of the original plant
-        old_f = slice(self.filter_start, self.filter_start + n_f)
-        c = np.zeros((self.c.shape[0], n_all))
-        c[:, :n] = self.c[:, :n]
-        c[:, pos:pos + n_f] = self.c[:, old_f]
-        c_clean = np.zeros_like(c)
-        c_clean[:, :n] = self.c_clean[:, :n]
-        for i, row in enumerate(self.filter_rows):
-            a[pos + i] = c[row]
-        return replace(self, a=a, b=b, c=c, c_clean=c_clean, filter_start=pos, delay_steps=tuple(int(v) for v in k))
-
-    def settled_state(self, dx: np.ndarray, dforce: np.ndarray | None = None) -> np.ndarray:
-        """The plant state for a deviation ``dx`` (20,) of the bogie and ``dforce`` of the
-        channel forces, with empty command registers and the sensor filters settled on it (as
-        the env starts an episode: its first observation is unfiltered). A plant of fewer
-        bogie states (``bogie_states``) takes those entries of ``dx``."""
-        dx = np.asarray(dx, dtype=float)
-        if dx.shape != (N_STATES,):
-            raise ValueError(f"settled_state: dx has shape {dx.shape}; allowed: ({N_STATES},), the bogie's state deviation")
-        bogie = dx if self.bogie_states is None else dx[list(self.bogie_states)]
-        s = np.zeros(self.a.shape[0])
-        s[:bogie.size] = bogie
-        if dforce is not None:
-            s[bogie.size:bogie.size + self.n_act] = dforce
-        if self.filter_rows:
-            start = self.filter_start
-            s[start:start + len(self.filter_rows)] = (self.c_clean @ s)[list(self.filter_rows)]
-        return s
-
-    @property
-    def n_act(self) -> int:
-        return len(self.active)
-
-    @property
-    def channel_names(self) -> list[str]:
-        return [CHANNELS[k] for k in self.active]
-
-    def with_extra_delay(self, extra_steps) -> "PlantModel":
-        """The same plant with ``extra_steps[j]`` more whole steps of command delay in channel j
-        (a shift register in front of the plant's input; new states at the end)."""
-        extra = np.broadcast_to(np.asarray(extra_steps, dtype=int), (self.n_act,))
-        if np.any(extra < 0):
-            raise ValueError(f"extra_steps = {extra_steps!r} must be >= 0")
-        n, m = self.a.shape[0], self.n_act
-        total = int(extra.sum())
-        a = np.zeros((n + total, n + total))
-        b = np.zeros((n + total, m))
-        a[:n, :n] = self.a
-        pos = n
-        for j, e in enumerate(extra):
-            if e == 0:
-                b[:n, j] = self.b[:, j]
-                continue
-            b[pos, j] = 1.0
-            for i in range(1, e):
-                a[pos + i, pos + i - 1] = 1.0
-            a[:n, pos + e - 1] = self.b[:, j]
-            pos += e
-        c = np.hstack([self.c, np.zeros((self.c.shape[0], total))])
-        c_clean = None if self.c_clean is None else np.hstack([self.c_clean, np.zeros((self.c.shape[0], total))])
-        delays = tuple(int(d + e) for d, e in zip(self.delay_steps, extra))
-        return replace(self, a=a, b=b, c=c, c_clean=c_clean, delay_steps=delays)
 
 
 def _active_channels(config: dict) -> list[int]:
@@ -242,20 +96,6 @@ def _active_channels(config: dict) -> list[int]:
 def _delay_steps(config: dict, active: list[int]) -> tuple[int, ...]:
     """Each active channel's command delay, whole control steps."""
     return tuple(int(config["actuators"][CHANNELS[k]]["delay_steps"]) for k in active)
-
-
-def sensor_filters(config: dict) -> tuple[tuple[int, ...], np.ndarray]:
-    """The observation entries the env's sensor model filters, and each filter's weight.
-
-    With ``sensors.enabled`` the env passes the first ``N_SENSED`` observation entries (the six
-    sensors and the speed) through ``f_n = f_{n-1} + w (y_n - f_{n-1})``,
-    ``w = 1 - exp(-2 pi f_c dt)`` (``bogie_env.envs.sensors.sense_rows``), and observes ``f_n``;
-    the actuator-force entries are exact. Without it, nothing is filtered.
-    """
-    if not config.get("sensors", {}).get("enabled"):
-        return (), np.zeros(0)
-    weights = sensor_table(config["sensors"], config["dt"])[:, S_FILTER_WEIGHT]
-    return tuple(range(N_SENSED)), np.asarray(weights, dtype=float)
 
 
 def observe(x: np.ndarray, force: np.ndarray, speed: float, plant_config: dict, model: BogieModel) -> np.ndarray:
@@ -338,64 +178,9 @@ def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = No
     u4 = np.zeros(N_INPUTS)
     u4[active] = force_eq
     j_x = model.jacobian(x_eq, speed, inputs=force_matrix() @ u4)
-    b_f = model.input_matrix() @ force_matrix(active)
-    n = N_STATES + n_act
-    a_c = np.zeros((n, n))
-    a_c[:N_STATES, :N_STATES] = j_x
-    a_c[:N_STATES, N_STATES:] = b_f
-    a_c[N_STATES:, N_STATES:] = -np.diag(bandwidth)
-    b_c = np.zeros((n, n_act))
-    b_c[N_STATES:, :] = np.diag(bandwidth * max_force)
-    delays = _delay_steps(config, active)
-    rows, weights = sensor_filters(config)
+    a_c, b_c = actuated(j_x, model.input_matrix() @ force_matrix(active), bandwidth, max_force)
     c_xf = _observation_jacobian(x_eq, force_eq, speed, config, model)
-    a, b, c, c_clean, filter_start = sampled_loop_plant(a_c, b_c, c_xf, config["dt"], delays, rows, weights)
-    return PlantModel(a, b, c, config["dt"], speed, np.asarray(x_eq, float), force_eq, active, max_force, bandwidth, delays,
-                      config["observation"]["type"], bool(config["observation"]["include_actuators"]), model,
-                      tuple(rows), np.asarray(weights), c_clean, filter_start, a_c, b_c)  # fmt: skip
-
-
-def sampled_loop_plant(a_c: np.ndarray, b_c: np.ndarray, c_xf: np.ndarray, dt: float, delays, rows, weights
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:  # fmt: skip
-    """The matrices of a :class:`PlantModel` from its continuous part: ``a_c, b_c`` of
-    ``[x, F]`` (bogie states and channel forces, the normalised command as input), ``c_xf`` the
-    clean observation of ``[x, F]``, sampled at ``dt`` with a zero-order hold; ``delays[j]``
-    whole steps of command delay in channel j (a shift register per channel, the oldest command
-    driving the lag) and the sensor filters of observation ``rows`` with ``weights``. Returns
-    ``(a, b, c, c_clean, filter_start)``. One assembly for :func:`plant_model` and any other
-    continuous model of the same structure (``bogie_agents.robust.DesignModel.loop_plant``), so
-    that :meth:`PlantModel.with_extra_delay` and :meth:`PlantModel.with_delay_s` apply to it."""
-    n, n_act = a_c.shape[0], b_c.shape[1]
-    if len(delays) != n_act or len(rows) != len(weights):
-        raise ValueError(f"sampled_loop_plant: {len(delays)} delays for {n_act} channels, {len(rows)} filter rows "
-                         f"for {len(weights)} weights; need one delay per channel and one weight per row")  # fmt: skip
-    ad, bd = discretize(a_c, b_c, dt)
-    n_reg, n_f = sum(delays), len(rows)
-    n_all = n + n_reg + n_f
-    a = np.zeros((n_all, n_all))
-    b = np.zeros((n_all, n_act))
-    a[:n, :n] = ad
-    # command shift registers: the ZOH target of channel j is its command of d_j intervals ago
-    pos = n
-    for j, d in enumerate(delays):
-        if d == 0:
-            b[:n, j] = bd[:, j]
-            continue
-        b[pos, j] = 1.0  # the newest command
-        for i in range(1, d):
-            a[pos + i, pos + i - 1] = 1.0
-        a[:n, pos + d - 1] = bd[:, j]  # the oldest drives the lag
-        pos += d
-    c = np.zeros((c_xf.shape[0], n_all))
-    c[:, :n] = c_xf
-    c_clean = c.copy()
-    # sensor filters: y_n = (1 - w) f_{n-1} + w C s_n is observed and becomes the next state
-    for i, (row, w) in enumerate(zip(rows, weights)):
-        clean = c[row].copy()
-        c[row] = w * clean
-        c[row, n + n_reg + i] = 1.0 - w
-        a[n + n_reg + i] = c[row]
-    return a, b, c, c_clean, n + n_reg
+    return sampled_plant(a_c, b_c, c_xf, config, active, _delay_steps(config, active), speed, x_eq, force_eq, model)
 
 
 # =============================================================================================
