@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from bogie_agents import margins as M
-from bogie_agents.policies import CLASSICAL, load_policy
+from bogie_agents.policies import load_policy
 from bogie_agents.robust import (
     DESIGN_CONICITIES,
     GAINS_FILE,
@@ -244,10 +244,23 @@ def test_rows_keep_their_own_state(config, speed_kmh):
     assert batch.shape == (3, 4) and batch.dtype == np.float32 and np.all(np.abs(batch) <= 1.0)
 
 
-def test_registered_and_loadable(config):
-    assert CLASSICAL["robust_damping"] is RobustDampingController
-    policy = load_policy("robust_damping", config)
-    assert policy.observation_type == "sensors"
+def test_loaded_by_name_it_acts_as_the_controller_built_for_the_config(config):
+    """``load_policy("robust_damping", config)`` (the name ``bogie evaluate`` takes) acts on a
+    closed-loop observation sequence exactly as ``RobustDampingController(config)`` does, and
+    commands something (a registry entry of another controller, or of passive, fails this)."""
+    from bogie_env.envs.task import HuntingTask
+
+    task = HuntingTask(2, config)
+    task.seed_rows(np.arange(2), [3, 4])
+    task.reset_rows(np.arange(2))
+    loaded, built = load_policy("robust_damping", config), RobustDampingController(config)
+    loaded.reset(2)
+    built.reset(2)
+    for _ in range(30):
+        action = loaded.act(task.obs)
+        np.testing.assert_array_equal(action, built.act(task.obs))
+        task.step(action)
+    assert loaded.observation_type == "sensors" and np.abs(action).max() > 1e-3
 
 
 def test_bad_gain_table_is_named(tmp_path, controller):
