@@ -22,13 +22,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm, solve_discrete_are
+from scipy.linalg import solve_discrete_are
 
 from bogie_env.actuators import CHANNEL_NAMES, active_channels, force_matrix
 from bogie_env.dynamics import LATERAL_STATES, N_STATES, BogieModel, state_index
 from bogie_env.envs import task as T
 from bogie_env.envs.config import bogie_params
 from bogie_env.envs.task import STATE_SCALES
+from bogie_env.sampled_plant import actuated, discretize, sampled_loop_plant, sensor_filters
 from bogie_env.stability import KMH, linearize
 
 LAT = list(LATERAL_STATES)
@@ -122,14 +123,14 @@ class SkyhookController(Controller):
 # ---------------------------------------------------------------------------------------------
 
 
-def discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Zero-order-hold discretisation via the block exponential."""
-    n, m = b.shape
-    block = np.zeros((n + m, n + m))
-    block[:n, :n] = a
-    block[:n, n:] = b
-    e = expm(block * dt)
-    return e[:n, :n], e[:n, n:]
+def lateral_model(model: BogieModel, lin, speed: float, active, bandwidth: np.ndarray, max_force: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(A, B) of the design model ``[x_lat (16), F (n_act)]`` at ``speed`` (m/s), the normalised
+    command as input: the lateral Jacobian of ``lin`` (:func:`bogie_env.stability.linearize` of
+    ``model``) and the actuators' lags (:func:`bogie_env.sampled_plant.actuated`). One
+    definition for the LQR/LQG and ``robust.DesignModel``."""
+    b_lat = (model.input_matrix() @ force_matrix(active))[LAT]
+    return actuated(lin.lateral_jacobian(speed), b_lat, bandwidth, max_force)
 
 
 def sensor_matrix(a_cont: np.ndarray, params) -> np.ndarray:
@@ -201,17 +202,8 @@ class LQRController(Controller):
 
     # ---- design -------------------------------------------------------------------------------
     def continuous_model(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
-        a_lat = self.lin.lateral_jacobian(speed)
-        b_full = self.model.input_matrix() @ force_matrix(self.active)  # (20, n_act)
-        b_lat = b_full[LAT]
-        n, m = N_LAT, self.n_act
-        a = np.zeros((n + m, n + m))
-        a[:n, :n] = a_lat
-        a[:n, n:] = b_lat
-        a[n:, n:] = -np.diag(self.bandwidth)
-        b = np.zeros((n + m, m))
-        b[n:, :] = np.diag(self.bandwidth * self.max_force)
-        return a, b
+        """(A, B) of ``[x_lat, F]`` at ``speed`` (m/s): :func:`lateral_model`."""
+        return lateral_model(self.model, self.lin, speed, self.active, self.bandwidth, self.max_force)
 
     def weights(self) -> tuple[np.ndarray, np.ndarray]:
         delta = self.model.params.delta
@@ -288,7 +280,7 @@ class LQGController(LQRController):
 
     With the env's sensor model (``sensors.enabled``, the v1 ids; ``sensor_model=None`` follows
     the config) the design model is the sampled plant the env runs
-    (:func:`bogie_agents.margins.sampled_loop_plant`): each channel's command delay
+    (:func:`bogie_env.sampled_plant.sampled_loop_plant`): each channel's command delay
     (``delay_steps``) as a shift register and each sensor's anti-alias filter as a state, so the
     LQR gains are designed for the loop delay; and the filter estimates each sensor's
     per-episode bias as a slow random walk (``bias_time_s``), so a constant bias (a 7.5 mg
@@ -335,8 +327,6 @@ class LQGController(LQRController):
         """With the sensor model: ``(A, B, C)`` of ``[x_lat, F, command registers, sensor
         filters, sensor biases]`` at ``speed`` (m/s), sampled at the control step; ``y = C z``
         is the six sensors in observation units."""
-        from .margins import sampled_loop_plant, sensor_filters
-
         a_c, b_c = self.continuous_model(speed)
         c_xf = self.measurement_matrix(speed)
         delays = [int(self.config["actuators"][CHANNEL_NAMES[k]]["delay_steps"]) for k in self.active]

@@ -308,11 +308,9 @@ def curving_columns(policy, env_config: Mapping[str, Any] | None = None, routes:
     key = repr((sorted(env_config.items(), key=str), asdict(settings)))
     if passive is None and key in _PASSIVE_CACHE:
         passive = _PASSIVE_CACHE[key]
-    result = passive if (policy == "passive" and passive is not None) else run_routes(build(policy), env_config, settings, reporter)
-    if policy == "passive":
-        _PASSIVE_CACHE[key] = result
-    if passive is None:
+    if passive is None:  # passive runs once: it is the result when the policy is passive
         _PASSIVE_CACHE[key] = passive = run_routes(build("passive"), env_config, settings, reporter)
+    result = passive if policy == "passive" else run_routes(build(policy), env_config, settings, reporter)
     return {
         "policy": policy if isinstance(policy, str) else getattr(policy, "name", type(policy).__name__),
         "routes": compare_with_passive(result, passive),

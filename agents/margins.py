@@ -41,9 +41,9 @@ whole steps; ``delay_margin_sampled_s`` is the exact figure between them. Margin
 meaningful only when the nominal closed loop is stable (``closed_loop_stable``); otherwise
 they are reported as None.
 
-Oracles: :func:`simulate_loop`, the same controller on the compiled nonlinear bogie with
-per-loop gain factors and extra delays (to a fraction of ``dt``), and :func:`simulate_env`,
-the env's own task (``HuntingTask``) under :func:`quiet_env_config`.
+Oracles (:mod:`bogie_agents.margin_oracles`): ``simulate_loop``, the same controller on the
+compiled nonlinear bogie with per-loop gain factors and extra delays (to a fraction of
+``dt``), and ``simulate_env``, the env's own task (``HuntingTask``) under ``quiet_env_config``.
 
 Entry point: :func:`margins_table` ``(policy, env_config, speeds_kmh, conicity=None)``.
 """
@@ -51,22 +51,22 @@ Entry point: :func:`margins_table` ``(policy, env_config, speeds_kmh, conicity=N
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from bogie_env.actuators import CH_DELAY_STEPS, CHANNEL_NAMES, FORCE, channel_table, force_matrix
+from bogie_env.actuators import CHANNEL_NAMES, force_matrix
 from bogie_env.dynamics import N_INPUTS, N_STATES, BogieModel, state_index
 from bogie_env.envs import task as T
 from bogie_env.envs.config import bogie_params, merge_config
 from bogie_env.envs.scenario import RANGES
-from bogie_env.envs.sensors import N_SENSED, S_FILTER_WEIGHT, SENSOR_NAMES, sensor_table
+from bogie_env.envs.sensors import SENSOR_NAMES
 from bogie_env.envs.task import STATE_SCALES
 from bogie_env.params import ConfigError
+from bogie_env.sampled_plant import PlantModel, actuated, sampled_plant, sensor_filters
 from bogie_env.stability import KMH
 
-from .controllers import discretize
 from .linear_models import (ControllerModel, finite_difference_jacobian, residual_controller_model, sb3_action,  # noqa: F401
                             sb3_action_function, sb3_controller_model, sb3_jacobian_autograd, static_model)  # fmt: skip
 
@@ -82,153 +82,8 @@ DEFAULT_SPEEDS_KMH = (300.0, 350.0, 400.0, 450.0, 500.0)
 # =============================================================================================
 
 
-@dataclass
-class PlantModel:
-    """The sampled plant from the normalised command u (n_act) to the observation y.
-
-    State ``[x (20), F (n_act), command registers, sensor filters]``: the channels' command
-    shift registers (``delay_steps[j]`` states for channel j, the oldest feeding the lag) and
-    the anti-alias filter states of the measured observation entries (``filter_rows``), each
-    holding the previous sample's filtered value. ``y_n = C s_n`` (no feedthrough: the
-    observation of step n is taken at the end of the previous interval).
-    """
-
-    a: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    dt: float
-    speed: float  # m/s
-    x_eq: np.ndarray  # (20,) equilibrium state
-    force_eq: np.ndarray  # (n_act,) equilibrium channel forces
-    active: list[int]
-    max_force: np.ndarray
-    bandwidth: np.ndarray  # rad/s
-    delay_steps: tuple[int, ...]  # per active channel
-    observation_type: str
-    include_actuators: bool
-    model: BogieModel = field(repr=False)
-    filter_rows: tuple[int, ...] = ()  # observation entries passed through the sensor filter
-    filter_weight: np.ndarray = field(default_factory=lambda: np.zeros(0))  # weight of the new sample
-    c_clean: np.ndarray | None = None  # the observation before the sensor filters
-    filter_start: int = 0  # index of the first filter state
-    a_cont: np.ndarray | None = field(default=None, repr=False)  # continuous bogie + lag, for fractional delays
-    b_cont: np.ndarray | None = field(default=None, repr=False)
-    #: which of the 20 bogie states the plant's first states are (None: all 20, in order)
-    bogie_states: tuple[int, ...] | None = None
-
-    def with_delay_s(self, extra_s) -> "PlantModel":
-        """The plant with ``extra_s`` (scalar: every channel; or per channel) seconds more
-        command delay, not necessarily whole steps: the exact sampled model of a held command
-        that reaches the lag ``tau`` later, i.e. switches to the new command a fraction ``f`` of
-        the interval late (``x+ = Phi x + Gamma_a u_{n-k-1} + Gamma_b u_{n-k}``, ``Gamma_b`` the
-        ZOH integral over the last ``(1 - f) dt``, ``Gamma_a`` that over the first ``f dt``
-        carried to the end). Built from the plant of :func:`plant_model` (not from an extended one)."""
-        if self.a_cont is None:
-            raise ValueError("with_delay_s needs a plant from plant_model (its continuous part)")
-        from scipy.linalg import expm
-
-        extra = np.broadcast_to(np.asarray(extra_s, dtype=float), (self.n_act,))
-        if np.any(~np.isfinite(extra)) or np.any(extra < 0):
-            raise ValueError(f"extra_s = {extra_s!r} must be finite and >= 0")
-        dt, n, m = self.dt, self.a_cont.shape[0], self.n_act
-        total = np.array(self.delay_steps) + extra / dt  # steps
-        k = np.floor(total + 1e-9).astype(int)
-        f = np.where(total - k > 1e-9, total - k, 0.0)
-        lengths = k + (f > 0)
-        n_f = len(self.filter_rows)
-        n_all = n + int(lengths.sum()) + n_f
-        phi, _ = discretize(self.a_cont, self.b_cont, dt)
-        a = np.zeros((n_all, n_all))
-        b = np.zeros((n_all, m))
-        a[:n, :n] = phi
-
-        def zoh(t: float) -> tuple[np.ndarray, np.ndarray]:
-            """exp(A t) and the ZOH input integral over t."""
-            e_t, g_t = discretize(self.a_cont, self.b_cont, t) if t > 0 else (np.eye(n), np.zeros((n, m)))
-            return e_t, g_t
-
-        pos = n
-        for j in range(m):
-            e_late, g_late = zoh((1.0 - f[j]) * dt)
-            _, g_early = zoh(f[j] * dt)
-            terms = {int(k[j]): g_late[:, j]}  # u_{n-k}: the last (1 - f) dt
-            if f[j] > 0:
-                terms[int(k[j]) + 1] = e_late @ g_early[:, j]  # u_{n-k-1}: the first f dt
-            if lengths[j]:
-                b[pos, j] = 1.0
-                for i in range(1, lengths[j]):
-                    a[pos + i, pos + i - 1] = 1.0
-            for age, column in terms.items():
-                if age == 0:
-                    b[:n, j] += column
-                else:
-                    a[:n, pos + age - 1] += column
-            pos += int(lengths[j])
-        # the observation and the filters: core and filter columns of the original plant
-        old_f = slice(self.filter_start, self.filter_start + n_f)
-        c = np.zeros((self.c.shape[0], n_all))
-        c[:, :n] = self.c[:, :n]
-        c[:, pos:pos + n_f] = self.c[:, old_f]
-        c_clean = np.zeros_like(c)
-        c_clean[:, :n] = self.c_clean[:, :n]
-        for i, row in enumerate(self.filter_rows):
-            a[pos + i] = c[row]
-        return replace(self, a=a, b=b, c=c, c_clean=c_clean, filter_start=pos, delay_steps=tuple(int(v) for v in k))
-
-    def settled_state(self, dx: np.ndarray, dforce: np.ndarray | None = None) -> np.ndarray:
-        """The plant state for a deviation ``dx`` (20,) of the bogie and ``dforce`` of the
-        channel forces, with empty command registers and the sensor filters settled on it (as
-        the env starts an episode: its first observation is unfiltered). A plant of fewer
-        bogie states (``bogie_states``) takes those entries of ``dx``."""
-        dx = np.asarray(dx, dtype=float)
-        if dx.shape != (N_STATES,):
-            raise ValueError(f"settled_state: dx has shape {dx.shape}; allowed: ({N_STATES},), the bogie's state deviation")
-        bogie = dx if self.bogie_states is None else dx[list(self.bogie_states)]
-        s = np.zeros(self.a.shape[0])
-        s[:bogie.size] = bogie
-        if dforce is not None:
-            s[bogie.size:bogie.size + self.n_act] = dforce
-        if self.filter_rows:
-            start = self.filter_start
-            s[start:start + len(self.filter_rows)] = (self.c_clean @ s)[list(self.filter_rows)]
-        return s
-
-    @property
-    def n_act(self) -> int:
-        return len(self.active)
-
-    @property
-    def channel_names(self) -> list[str]:
-        return [CHANNELS[k] for k in self.active]
-
-    def with_extra_delay(self, extra_steps) -> "PlantModel":
-        """The same plant with ``extra_steps[j]`` more whole steps of command delay in channel j
-        (a shift register in front of the plant's input; new states at the end)."""
-        extra = np.broadcast_to(np.asarray(extra_steps, dtype=int), (self.n_act,))
-        if np.any(extra < 0):
-            raise ValueError(f"extra_steps = {extra_steps!r} must be >= 0")
-        n, m = self.a.shape[0], self.n_act
-        total = int(extra.sum())
-        a = np.zeros((n + total, n + total))
-        b = np.zeros((n + total, m))
-        a[:n, :n] = self.a
-        pos = n
-        for j, e in enumerate(extra):
-            if e == 0:
-                b[:n, j] = self.b[:, j]
-                continue
-            b[pos, j] = 1.0
-            for i in range(1, e):
-                a[pos + i, pos + i - 1] = 1.0
-            a[:n, pos + e - 1] = self.b[:, j]
-            pos += e
-        c = np.hstack([self.c, np.zeros((self.c.shape[0], total))])
-        c_clean = None if self.c_clean is None else np.hstack([self.c_clean, np.zeros((self.c.shape[0], total))])
-        delays = tuple(int(d + e) for d, e in zip(self.delay_steps, extra))
-        return replace(self, a=a, b=b, c=c, c_clean=c_clean, delay_steps=delays)
-
-
-def _active_channels(config: dict) -> list[int]:
+def force_channels(config: dict) -> list[int]:
+    """The active channels (indices into ``CHANNEL_NAMES``), each in ``force`` mode (else a named error)."""
     active = [k for k, name in enumerate(CHANNELS) if config["actuators"][name]["mode"] != "off"]
     for k in active:
         if config["actuators"][CHANNELS[k]]["mode"] != "force":
@@ -239,23 +94,9 @@ def _active_channels(config: dict) -> list[int]:
     return active
 
 
-def _delay_steps(config: dict, active: list[int]) -> tuple[int, ...]:
+def command_delay_steps(config: dict, active: list[int]) -> tuple[int, ...]:
     """Each active channel's command delay, whole control steps."""
     return tuple(int(config["actuators"][CHANNELS[k]]["delay_steps"]) for k in active)
-
-
-def sensor_filters(config: dict) -> tuple[tuple[int, ...], np.ndarray]:
-    """The observation entries the env's sensor model filters, and each filter's weight.
-
-    With ``sensors.enabled`` the env passes the first ``N_SENSED`` observation entries (the six
-    sensors and the speed) through ``f_n = f_{n-1} + w (y_n - f_{n-1})``,
-    ``w = 1 - exp(-2 pi f_c dt)`` (``bogie_env.envs.sensors.sense_rows``), and observes ``f_n``;
-    the actuator-force entries are exact. Without it, nothing is filtered.
-    """
-    if not config.get("sensors", {}).get("enabled"):
-        return (), np.zeros(0)
-    weights = sensor_table(config["sensors"], config["dt"])[:, S_FILTER_WEIGHT]
-    return tuple(range(N_SENSED)), np.asarray(weights, dtype=float)
 
 
 def observe(x: np.ndarray, force: np.ndarray, speed: float, plant_config: dict, model: BogieModel) -> np.ndarray:
@@ -264,7 +105,7 @@ def observe(x: np.ndarray, force: np.ndarray, speed: float, plant_config: dict, 
     The same formulas and scalings as the compiled env (``bogie_env.envs.kernel._observe``),
     in float64 and unclipped.
     """
-    active = _active_channels(plant_config)
+    active = force_channels(plant_config)
     x = np.atleast_2d(x)
     force = np.atleast_2d(force)
     n = x.shape[0]
@@ -296,7 +137,7 @@ def observe(x: np.ndarray, force: np.ndarray, speed: float, plant_config: dict, 
 def _observation_jacobian(x_eq, force_eq, speed, config, model) -> np.ndarray:
     """d(observation)/d[x, F] at the operating point: exact (the observation is linear in x and
     F except the acceleration, whose row is the Jacobian's dyb row)."""
-    active = _active_channels(config)
+    active = force_channels(config)
     n_act = len(active)
     y0 = observe(x_eq[None], force_eq[None], speed, config, model)[0]
     jac = np.zeros((y0.size, N_STATES + n_act))
@@ -321,7 +162,7 @@ def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = No
                 x_eq: np.ndarray | None = None, model: BogieModel | None = None) -> PlantModel:  # fmt: skip
     """The sampled plant at ``speed_kmh`` about ``(x_eq, force_eq)`` (default: the passive
     equilibrium with zero forces)."""
-    active = _active_channels(config)
+    active = force_channels(config)
     if not active:
         raise ConfigError("margins: no active actuator channel; every actuators.*.mode is 'off'")
     if model is None:
@@ -338,64 +179,9 @@ def plant_model(config: dict, speed_kmh: float, force_eq: np.ndarray | None = No
     u4 = np.zeros(N_INPUTS)
     u4[active] = force_eq
     j_x = model.jacobian(x_eq, speed, inputs=force_matrix() @ u4)
-    b_f = model.input_matrix() @ force_matrix(active)
-    n = N_STATES + n_act
-    a_c = np.zeros((n, n))
-    a_c[:N_STATES, :N_STATES] = j_x
-    a_c[:N_STATES, N_STATES:] = b_f
-    a_c[N_STATES:, N_STATES:] = -np.diag(bandwidth)
-    b_c = np.zeros((n, n_act))
-    b_c[N_STATES:, :] = np.diag(bandwidth * max_force)
-    delays = _delay_steps(config, active)
-    rows, weights = sensor_filters(config)
+    a_c, b_c = actuated(j_x, model.input_matrix() @ force_matrix(active), bandwidth, max_force)
     c_xf = _observation_jacobian(x_eq, force_eq, speed, config, model)
-    a, b, c, c_clean, filter_start = sampled_loop_plant(a_c, b_c, c_xf, config["dt"], delays, rows, weights)
-    return PlantModel(a, b, c, config["dt"], speed, np.asarray(x_eq, float), force_eq, active, max_force, bandwidth, delays,
-                      config["observation"]["type"], bool(config["observation"]["include_actuators"]), model,
-                      tuple(rows), np.asarray(weights), c_clean, filter_start, a_c, b_c)  # fmt: skip
-
-
-def sampled_loop_plant(a_c: np.ndarray, b_c: np.ndarray, c_xf: np.ndarray, dt: float, delays, rows, weights
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:  # fmt: skip
-    """The matrices of a :class:`PlantModel` from its continuous part: ``a_c, b_c`` of
-    ``[x, F]`` (bogie states and channel forces, the normalised command as input), ``c_xf`` the
-    clean observation of ``[x, F]``, sampled at ``dt`` with a zero-order hold; ``delays[j]``
-    whole steps of command delay in channel j (a shift register per channel, the oldest command
-    driving the lag) and the sensor filters of observation ``rows`` with ``weights``. Returns
-    ``(a, b, c, c_clean, filter_start)``. One assembly for :func:`plant_model` and any other
-    continuous model of the same structure (``bogie_agents.robust.DesignModel.loop_plant``), so
-    that :meth:`PlantModel.with_extra_delay` and :meth:`PlantModel.with_delay_s` apply to it."""
-    n, n_act = a_c.shape[0], b_c.shape[1]
-    if len(delays) != n_act or len(rows) != len(weights):
-        raise ValueError(f"sampled_loop_plant: {len(delays)} delays for {n_act} channels, {len(rows)} filter rows "
-                         f"for {len(weights)} weights; need one delay per channel and one weight per row")  # fmt: skip
-    ad, bd = discretize(a_c, b_c, dt)
-    n_reg, n_f = sum(delays), len(rows)
-    n_all = n + n_reg + n_f
-    a = np.zeros((n_all, n_all))
-    b = np.zeros((n_all, n_act))
-    a[:n, :n] = ad
-    # command shift registers: the ZOH target of channel j is its command of d_j intervals ago
-    pos = n
-    for j, d in enumerate(delays):
-        if d == 0:
-            b[:n, j] = bd[:, j]
-            continue
-        b[pos, j] = 1.0  # the newest command
-        for i in range(1, d):
-            a[pos + i, pos + i - 1] = 1.0
-        a[:n, pos + d - 1] = bd[:, j]  # the oldest drives the lag
-        pos += d
-    c = np.zeros((c_xf.shape[0], n_all))
-    c[:, :n] = c_xf
-    c_clean = c.copy()
-    # sensor filters: y_n = (1 - w) f_{n-1} + w C s_n is observed and becomes the next state
-    for i, (row, w) in enumerate(zip(rows, weights)):
-        clean = c[row].copy()
-        c[row] = w * clean
-        c[row, n + n_reg + i] = 1.0 - w
-        a[n + n_reg + i] = c[row]
-    return a, b, c, c_clean, n + n_reg
+    return sampled_plant(a_c, b_c, c_xf, config, active, command_delay_steps(config, active), speed, x_eq, force_eq, model)
 
 
 # =============================================================================================
@@ -596,7 +382,7 @@ def operating_point(policy, config: dict, speed_kmh: float, model: BogieModel,
     controller's steady-state gain (:meth:`ControllerModel.dc_gain`) in the Jacobian. The sensor
     filters are settled there (their output is the clean observation).
     """
-    active = _active_channels(config)
+    active = force_channels(config)
     n_act = len(active)
     speed = speed_kmh / KMH
     max_force = np.array([config["actuators"][CHANNELS[k]]["max_force"] for k in active])
@@ -928,7 +714,7 @@ def margins_table(policy, env_config: dict, speeds_kmh=DEFAULT_SPEEDS_KMH, conic
     per_speed = [loop_margins(linear_loop(policy, env_config, float(v), model=model)) for v in speeds_kmh]
     unstable = [r["speed_kmh"] for r in per_speed if not r["closed_loop_stable"]]
     rows, _ = sensor_filters(config)
-    active = _active_channels(config)
+    active = force_channels(config)
 
     def worst(key, pick=min):
         return None if unstable else _worst(per_speed, key, pick)
@@ -938,7 +724,7 @@ def margins_table(policy, env_config: dict, speeds_kmh=DEFAULT_SPEEDS_KMH, conic
         "dt_s": config["dt"],
         "conicity": float(model.params.lam),
         "observation_type": config["observation"]["type"],
-        "delay_steps": dict(zip([CHANNELS[k] for k in active], _delay_steps(config, active))),
+        "delay_steps": dict(zip([CHANNELS[k] for k in active], command_delay_steps(config, active))),
         "sensor_filters_hz": {SENSOR_NAMES[r]: config["sensors"][SENSOR_NAMES[r]]["bandwidth_hz"] for r in rows} or None,
         "model": ("discrete at the control rate: exact ZOH of bogie and actuator lag, command delay shift registers"
                   + (", the sensors' first-order anti-alias filters" if rows else "")
@@ -1007,185 +793,3 @@ def format_table(table: dict[str, Any]) -> str:
                      f"{_fmt(None if dm is None else dm * 1e3, '.1f')} ms, all loops "
                      f"{_steps(su['all_loops_extra_delay_steps'])} extra steps ({_ms(su['all_loops_delay_margin_s'])} ms)")  # fmt: skip
     return "\n".join(lines)
-
-
-# =============================================================================================
-# The nonlinear oracle
-# =============================================================================================
-
-
-def simulate_loop(policy, env_config: dict, speed_kmh: float, x0: np.ndarray, force0: np.ndarray, u0: np.ndarray,
-                  duration_s: float, gains: np.ndarray | None = None, extra_delay_s: np.ndarray | float = 0.0,
-                  substeps: int = 20, model: BogieModel | None = None) -> dict[str, np.ndarray]:  # fmt: skip
-    """Run the policy on the nonlinear bogie at a fixed speed on perfect track.
-
-    Rows: ``x0`` (N, 20) start states, all with channel forces ``force0`` and a command history
-    ``u0`` (the operating point). ``gains`` (N, n_act) scale each row's commands;
-    ``extra_delay_s`` (N,) or (N, n_act) delays them beyond the env's delay, rounded to
-    ``dt / substeps``. The physics is the compiled RK4 kernel of :class:`BatchSimulator`, at
-    ``dt / substeps`` (finer than the env's step, so it does not damp the fast modes); no
-    saturation or rate limit. With ``sensors.enabled`` the observation passes the sensors'
-    anti-alias filters as in the env (settled on the first sample; no noise or bias).
-    Returns ``t`` (steps,), ``x`` (steps, N, 20) at the control instants.
-    """
-    from bogie_env.simulator import BatchSimulator
-
-    config = policy_config(env_config, policy)
-    active = _active_channels(config)
-    if model is None:
-        model = plant_bogie(config)
-    x0 = np.atleast_2d(np.asarray(x0, float))
-    n, n_act = x0.shape[0], len(active)
-    dt = config["dt"]
-    speed = speed_kmh / KMH
-    gains = np.ones((n, n_act)) if gains is None else np.broadcast_to(np.asarray(gains, float), (n, n_act))
-    d_env = np.array(_delay_steps(config, active), dtype=int)
-    filter_rows, filter_weight = sensor_filters(config)
-    filter_rows = list(filter_rows)
-    extra = np.asarray(extra_delay_s, float)
-    extra = extra.reshape(-1, 1) if extra.ndim == 1 else extra
-    if np.any(~np.isfinite(extra)) or np.any(extra < 0):
-        raise ValueError(f"simulate_loop: extra_delay_s = {extra_delay_s!r} must be finite and >= 0")
-    lag = np.broadcast_to(np.rint(extra * substeps / dt).astype(int), (n, n_act)) + d_env[None, :] * substeps  # substeps
-    max_force = np.array([config["actuators"][CHANNELS[k]]["max_force"] for k in active])
-    table = channel_table(config["actuators"])
-    table[:, CH_DELAY_STEPS] = 0  # the delay is applied here, to a fraction of dt
-    sim = BatchSimulator(model, n, dt=dt / substeps, speed_range=(speed, speed), channels=table)
-    sim.set_rows(slice(None), x0, speed)
-    sim.lag[:, FORCE, active] = force0
-    sim.output[:, 0, active] = force0
-    n_steps = int(round(duration_s / dt))
-    max_lag = int(lag.max())
-    history = np.empty((n_steps + max_lag // substeps + 2, n, n_act))  # commands per control step
-    policy.reset(n)
-    xs = np.empty((n_steps + 1, n, N_STATES))
-    xs[0] = sim.x
-    target = np.zeros((n, len(CHANNEL_NAMES)))
-    rows = np.arange(n)[:, None]
-    filtered = None
-    for step in range(n_steps):
-        y = np.clip(observe(sim.x, sim.channel_output[:, active], speed, config, model), -T.OBS_BOUND, T.OBS_BOUND)
-        if filter_rows:
-            if filtered is None:
-                filtered = y[:, filter_rows].copy()  # settled on the first sample
-            else:
-                filtered += filter_weight * (y[:, filter_rows] - filtered)
-            y[:, filter_rows] = np.clip(filtered, -T.OBS_BOUND, T.OBS_BOUND)
-        y = y.astype(np.float32)
-        history[step] = np.asarray(policy.act(y), dtype=float)
-        for j in range(substeps):
-            s = step * substeps + j - lag  # substep index the command was issued at
-            m = np.floor_divide(s, substeps)
-            cmd = np.where(m >= 0, history[np.maximum(m, 0), rows, np.arange(n_act)[None, :]], u0[None, :])
-            target[:, active] = np.clip(gains * (cmd - u0) + u0, -1.0, 1.0) * max_force
-            sim.step(force_target=target)
-        if np.any(sim.status != 0):
-            xs[step + 1:] = np.nan
-            break
-        xs[step + 1] = sim.x
-    return {"t": np.arange(n_steps + 1) * dt, "x": xs}
-
-
-def deviation(x: np.ndarray, x_eq: np.ndarray) -> np.ndarray:
-    """The largest scaled lateral deviation from the operating point, per time and row."""
-    from bogie_env.dynamics import LATERAL_STATES
-
-    lat = list(LATERAL_STATES)
-    return np.max(np.abs(x[..., lat] - x_eq[lat]) / STATE_SCALES[lat], axis=-1)
-
-
-def envelope_growth_rate(t: np.ndarray, signal: np.ndarray, window_s: float = 0.25, floor: float = 1e-12,
-                         ceiling: float = 1e-2, skip_s: float = 0.5) -> float:  # fmt: skip
-    """Growth rate (1/s) of a signal's envelope: a line through log(max |s|) over windows of
-    ``window_s``, using only windows after ``skip_s`` whose peak lies in ``[floor, ceiling]``
-    (above round-off, below the nonlinear range). NaN with fewer than three such windows."""
-    dt = t[1] - t[0]
-    w = max(2, int(round(window_s / dt)))
-    start = int(round(skip_s / dt))
-    n = (len(t) - start) // w
-    peaks = np.array([np.max(np.abs(signal[start + i * w:start + (i + 1) * w])) for i in range(n)])
-    centres = np.array([t[start + i * w + w // 2] for i in range(n)])
-    keep = (peaks >= floor) & (peaks <= ceiling)
-    if np.count_nonzero(keep) < 3:
-        return math.nan
-    return float(np.polyfit(centres[keep], np.log(peaks[keep]), 1)[0])
-
-
-def dominant_frequency_hz(t: np.ndarray, signal: np.ndarray, skip_s: float = 0.5) -> float:
-    """The oscillation frequency (Hz) from the mean spacing of a signal's upward zero crossings
-    after ``skip_s`` (linear interpolation between samples); NaN with fewer than three."""
-    start = int(round(skip_s / (t[1] - t[0])))
-    s, tt = signal[start:], t[start:]
-    up = np.nonzero((s[:-1] < 0) & (s[1:] >= 0))[0]
-    if up.size < 3:
-        return math.nan
-    crossings = tt[up] - s[up] * (tt[up + 1] - tt[up]) / (s[up + 1] - s[up])
-    return float((up.size - 1) / (crossings[-1] - crossings[0]))
-
-
-# =============================================================================================
-# The env itself as the oracle
-# =============================================================================================
-
-
-def quiet_env_config(env_config: dict, policy, speed_kmh: float, conicity: float | None = None,
-                     extra_delay_steps=0, initial_perturbation_m: float = 1e-7, n_sub: int | None = None) -> dict:  # fmt: skip
-    """The env config whose small-signal loop :func:`linear_loop` describes, for running the
-    env itself: the policy's observation type, sensor noise and bias zero (the anti-alias
-    filters stay), perfect track, no per-episode randomisation (the conicity pinned if given),
-    a fixed speed, a small random start offset (``initial_perturbation_m``); ``extra_delay_steps``
-    (scalar or per active channel) added to the channels' ``delay_steps``; ``n_sub`` fixes the
-    RK4 substeps (None: the config's criterion)."""
-    from bogie_env.envs.config import make_config
-
-    config = policy_config(env_config, policy)
-    active = _active_channels(config)
-    extra = np.broadcast_to(np.asarray(extra_delay_steps, dtype=int), (len(active),))
-    update: dict[str, Any] = {
-        "speed": {"start_kmh": float(speed_kmh), "end_kmh": float(speed_kmh), "accel": 0.0, "start_kmh_range": None,
-                  "end_kmh_range": None, "accel_range": None},  # fmt: skip
-        "track": {"level": None, "rms": 0.0},
-        "randomize": {} if conicity is None else {"conicity": [check_conicity(conicity)] * 2},
-        "initial_perturbation": float(initial_perturbation_m),
-        "large_perturbation_probability": 0.0,
-        "observation": {"noise": 0.0},
-        "actuators": {CHANNELS[k]: {"delay_steps": int(config["actuators"][CHANNELS[k]]["delay_steps"] + e)}
-                      for k, e in zip(active, extra)},  # fmt: skip
-    }
-    if config["sensors"]["enabled"]:
-        update["sensors"] = {name: {"noise_density": 0.0, "bias": 0.0} for name in SENSOR_NAMES}
-    if n_sub is not None:
-        update["integration"] = {"n_sub": int(n_sub)}
-    return make_config(merge_config(config, update))
-
-
-def simulate_env(policy, env_config: dict, speed_kmh: float, duration_s: float, conicity: float | None = None,
-                 extra_delay_steps=0, initial_perturbation_m: float = 1e-7, seed: int = 0,
-                 n_sub: int | None = None) -> dict[str, np.ndarray]:  # fmt: skip
-    """Run ``policy`` in the env's own task (``HuntingTask``, one row) under
-    :func:`quiet_env_config`: the nonlinear bogie, the env's integrator, delays, lags, rate
-    limits, saturation and sensor filters, at a fixed speed on perfect track. Returns ``t``
-    (steps + 1,), ``x`` (steps + 1, 20) states, ``obs`` (steps + 1, n_obs), ``actions`` (steps,
-    n_act), ``n_sub`` the RK4 substeps used."""
-    from bogie_env.envs.task import HuntingTask
-
-    config = quiet_env_config(env_config, policy, speed_kmh, conicity, extra_delay_steps, initial_perturbation_m, n_sub)
-    task = HuntingTask(1, config)
-    task.seed_rows(np.array([0]), [seed])
-    task.reset_rows(np.array([0]))
-    n_steps = int(round(duration_s / config["dt"]))
-    xs = np.empty((n_steps + 1, N_STATES))
-    obs = np.empty((n_steps + 1, task.observation_dim))
-    actions = np.empty((n_steps, task.action_dim))
-    xs[0], obs[0] = task.states[0], task.obs[0]
-    policy.reset(1)
-    for n in range(n_steps):
-        actions[n] = np.asarray(policy.act(task.obs.copy()), dtype=float)[0]
-        task.step(actions[n][None])
-        xs[n + 1], obs[n + 1] = task.states[0], task.obs[0]
-        if task.blowup[0]:
-            xs[n + 2:] = np.nan
-            obs[n + 2:] = np.nan
-            actions[n + 1:] = np.nan
-            break
-    return {"t": np.arange(n_steps + 1) * config["dt"], "x": xs, "obs": obs, "actions": actions, "n_sub": task.n_sub}

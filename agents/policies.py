@@ -35,12 +35,7 @@ import numpy as np
 from bogie_env.fileio import write_text_atomic
 from bogie_env.params import ConfigError
 
-from .controllers import LQGController, LQRController, PassiveController, SkyhookController
-from .curving_assist import SteeringController
-from .robust import RobustDampingController
-
-CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": LQRController, "lqg": LQGController,
-             "robust_damping": RobustDampingController, "robust_steering": SteeringController}
+from .classical import CLASSICAL
 #: The shipped policies, one folder per env version (``v0``, ``v1``).
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 ALGORITHMS = ("ppo", "sac", "td3")

@@ -47,7 +47,7 @@ FEATURE_CLIP = 10.0
 def check_residual_config(residual: Any, where: str = "residual") -> dict:
     """``{"baseline": NAME, "scale": s, "features": F}``: a classical controller name, 0 < s <= 1
     and one of :data:`FEATURES` (default ``observation``)."""
-    from .policies import CLASSICAL
+    from .classical import CLASSICAL
 
     if not isinstance(residual, dict) or set(residual) - {"baseline", "scale", "features"} or "baseline" not in residual:
         raise ConfigError(f"{where} = {residual!r} is not allowed; allowed: a mapping with 'baseline' (one of "

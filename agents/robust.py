@@ -23,7 +23,7 @@ except the accelerometer chain, which starts at rest (:func:`start_state`).
 Commands (normalised, ``u = torque / max_force``): ``u = -G(V) s`` with ``s = [r_1, r_2, r_b,
 v_b]`` and G a gain matrix per design speed, interpolated linearly in the measured speed.
 The gains come from :func:`tune` (see docs/controllers.md): a multi-model search over the
-conicity grid and the speed range on the sampled design model (:func:`design_plant`: the
+conicity grid and the speed range on the sampled design model (:meth:`DesignModel.plant`: the
 bogie's linearisation, the actuators' lag, zero-order hold, the loop delay and the sensors'
 anti-alias filters), with the margin floors as constraints; then from the second stage of
 :mod:`bogie_agents.robust_track` (a track-forced re-tune of the 90-270 km/h rows and the
@@ -34,27 +34,21 @@ from __future__ import annotations
 
 import json
 import math
-import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bogie_env.actuators import CHANNEL_NAMES, active_channels, force_matrix
-from bogie_env.dynamics import LATERAL_STATES, BogieModel, state_index
+from bogie_env.actuators import CHANNEL_NAMES, active_channels
+from bogie_env.dynamics import LATERAL_STATES, BogieModel
 from bogie_env.envs import task as T
 from bogie_env.envs.config import bogie_params
-from bogie_env.envs.sensors import SENSOR_NAMES, filter_weight
 from bogie_env.envs.scenario import CONICITY_GRID
 from bogie_env.params import ConfigError
+from bogie_env.sampled_plant import PlantModel, sampled_plant
 from bogie_env.stability import KMH, linearize
 
-from .controllers import Controller, discretize, sensor_matrix
-
-if TYPE_CHECKING:
-    from .margins import PlantModel
+from .controllers import Controller, lateral_model, sensor_matrix
 
 LAT = list(LATERAL_STATES)
 N_LAT = len(LAT)
@@ -81,28 +75,6 @@ DESIGN_CONICITIES = CONICITY_GRID
 # =============================================================================================
 
 
-@dataclass
-class DesignPlant:
-    """``s+ = a s + b u``, ``y = c s`` from the normalised command u to the observation y (n_obs).
-
-    State ``[x_lat (16), F (n_act), u_{n-1}..u_{n-d} (d n_act), filtered sensors (7)]``.
-    """
-
-    a: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    speed_kmh: float
-    conicity: float
-
-
-def sensor_weights(env_config: dict) -> np.ndarray:
-    """Per-sample weight of each sensor channel's anti-alias filter (1: none), in observation order."""
-    sensors = env_config.get("sensors", {})
-    if not sensors.get("enabled", False):
-        return np.ones(len(SENSOR_NAMES))
-    return np.array([filter_weight(sensors[name]["bandwidth_hz"], env_config["dt"]) for name in SENSOR_NAMES])
-
-
 class DesignModel:
     """The design model of one bogie (one conicity) at any speed: exact in speed through
     :func:`bogie_env.stability.linearize` (J = J0 + J1/V + J2 V about the straight-track equilibrium)."""
@@ -125,7 +97,6 @@ class DesignModel:
         self.delay = delays.pop()
         self.dt = env_config["dt"]
         self.include_actuators = bool(env_config["observation"]["include_actuators"])
-        self.weights = sensor_weights(env_config)
 
     @property
     def n_act(self) -> int:
@@ -136,16 +107,9 @@ class DesignModel:
         return len(T.SENSORS) + 1 + (self.n_act if self.include_actuators else 0)
 
     def continuous(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
-        """(A, B) of ``[x_lat, F]`` with the normalised command as input, at ``speed`` (m/s)."""
-        n, m = N_LAT, self.n_act
-        b_lat = (self.model.input_matrix() @ force_matrix(self.active))[LAT]
-        a = np.zeros((n + m, n + m))
-        a[:n, :n] = self.lin.lateral_jacobian(speed)
-        a[:n, n:] = b_lat
-        a[n:, n:] = -np.diag(self.bandwidth)
-        b = np.zeros((n + m, m))
-        b[n:] = np.diag(self.bandwidth * self.max_force)
-        return a, b
+        """(A, B) of ``[x_lat, F]`` with the normalised command as input, at ``speed`` (m/s)
+        (:func:`bogie_agents.controllers.lateral_model`)."""
+        return lateral_model(self.model, self.lin, speed, self.active, self.bandwidth, self.max_force)
 
     def observation_matrix(self, a_cont: np.ndarray) -> np.ndarray:
         """The clean observation (before the sensor filters) from ``[x_lat, F]``: the six sensors
@@ -157,59 +121,16 @@ class DesignModel:
             c[first:, N_LAT:] = np.diag(1.0 / self.max_force)
         return c
 
-    def plant(self, speed_kmh: float) -> DesignPlant:
-        """The sampled plant at ``speed_kmh``."""
+    def plant(self, speed_kmh: float) -> PlantModel:
+        """The sampled plant at ``speed_kmh`` (:func:`bogie_env.sampled_plant.sampled_plant`:
+        ZOH, a command register per channel, the env's sensor filters), from the normalised
+        command to the observation. Its bogie state is the 16 lateral states
+        (``LATERAL_STATES``, its ``bogie_states``), not 20; ``x_eq`` is the straight-track
+        equilibrium of the linearisation. ``bogie_agents.margins.LinearLoop`` and
+        ``loop_margins`` (extra whole-step and fractional delays per channel) apply to it."""
         a_c, b_c = self.continuous(speed_kmh / KMH)
-        ad, bd = discretize(a_c, b_c, self.dt)
-        c0 = self.observation_matrix(a_c)
-        n, m, d = ad.shape[0], self.n_act, self.delay
-        n_d = n + d * m
-        a = np.zeros((n_d, n_d))
-        b = np.zeros((n_d, m))
-        a[:n, :n] = ad
-        if d == 0:
-            b[:n] = bd
-        else:  # shift register: the held command is the one of d steps ago
-            a[:n, n + (d - 1) * m:] = bd
-            b[n:n + m] = np.eye(m)
-            for i in range(1, d):
-                a[n + i * m:n + (i + 1) * m, n + (i - 1) * m:n + i * m] = np.eye(m)
-        c_d = np.zeros((c0.shape[0], n_d))
-        c_d[:, :n] = c0
-        # sensor filters: f_n = (1 - w) f_{n-1} + w C s_n; state f_{n-1}; y_n = f_n for the sensed rows
-        k = len(SENSOR_NAMES)
-        w = np.diag(self.weights)
-        a_all = np.zeros((n_d + k, n_d + k))
-        a_all[:n_d, :n_d] = a
-        a_all[n_d:, :n_d] = w @ c_d[:k]
-        a_all[n_d:, n_d:] = np.eye(k) - w
-        b_all = np.vstack([b, np.zeros((k, m))])
-        c_all = np.zeros((c_d.shape[0], n_d + k))
-        c_all[:, :n_d] = c_d
-        c_all[:k, :n_d] = w @ c_d[:k]
-        c_all[:k, n_d:] = np.eye(k) - w
-        return DesignPlant(a_all, b_all, c_all, speed_kmh, self.conicity)
-
-    def loop_plant(self, speed_kmh: float) -> PlantModel:
-        """The same sampled plant as :meth:`plant` (same transfer function) as a
-        ``bogie_agents.margins.PlantModel``, assembled by ``margins.sampled_loop_plant``: a
-        command register per channel and the continuous part kept, so that ``margins.LinearLoop``
-        and ``loop_margins`` (extra whole-step and fractional delays per channel) apply to the
-        design model. Its bogie state is the 16 lateral states (``LATERAL_STATES``, its
-        ``bogie_states``), not 20; ``x_eq`` is the straight-track equilibrium of the
-        linearisation."""
-        from .margins import PlantModel, sampled_loop_plant
-
-        a_c, b_c = self.continuous(speed_kmh / KMH)
-        sensed = bool(self.config.get("sensors", {}).get("enabled", False))
-        rows = tuple(range(len(SENSOR_NAMES))) if sensed else ()
-        weights = self.weights if sensed else np.zeros(0)
-        delays = (self.delay,) * self.n_act
-        a, b, c, c_clean, filter_start = sampled_loop_plant(a_c, b_c, self.observation_matrix(a_c), self.dt, delays, rows, weights)
-        return PlantModel(a, b, c, self.dt, speed_kmh / KMH, np.asarray(self.lin.equilibrium, float), np.zeros(self.n_act),
-                          list(self.active), self.max_force, self.bandwidth, delays, self.config["observation"]["type"],
-                          self.include_actuators, self.model, rows, np.asarray(weights, float), c_clean, filter_start,
-                          a_c, b_c, bogie_states=tuple(LAT))  # fmt: skip
+        return sampled_plant(a_c, b_c, self.observation_matrix(a_c), self.config, self.active, (self.delay,) * self.n_act,
+                             speed_kmh / KMH, self.lin.equilibrium, np.zeros(self.n_act), self.model, bogie_states=tuple(LAT))
 
 
 # =============================================================================================
@@ -568,7 +489,7 @@ def lead_model(bank: FilterBank, gains: np.ndarray, lead_s: float, dt: float,
     return a, b, np.hstack([gain * c, -k * (1 - alpha) * eye, k * alpha * eye]), gain * d
 
 
-def closed_loop(plant: DesignPlant, bank: FilterBank, gains: np.ndarray, factor: float = 1.0, lead_s: float = 0.0,
+def closed_loop(plant: PlantModel, bank: FilterBank, gains: np.ndarray, factor: float = 1.0, lead_s: float = 0.0,
                 dt: float = 0.01, lead_lowpass_hz: float | None = None) -> np.ndarray:  # fmt: skip
     """The closed-loop state matrix of the design plant with ``u = -factor G s`` (and the command
     lead ``lead_s``, :func:`lead_model`, with the control step ``dt``)."""
@@ -670,7 +591,7 @@ def linear_onsets(controller: "RobustDampingController", env_config: dict, conic
 def design_margins(controller: "RobustDampingController", env_config: dict, speeds_kmh=(300.0, 350.0, 400.0, 450.0, 500.0),
                    conicity: float | None = None) -> list[dict]:  # fmt: skip
     """Per-loop margins (``bogie_agents.margins.loop_margins``, python-control) of the design
-    model with the sensor filters and the loop delay (:meth:`DesignModel.loop_plant`), at the
+    model with the sensor filters and the loop delay (:meth:`DesignModel.plant`), at the
     given speeds."""
     from .margins import LinearLoop, loop_margins
 
@@ -678,7 +599,7 @@ def design_margins(controller: "RobustDampingController", env_config: dict, spee
     out = []
     for v in speeds_kmh:
         ctrl = controller.controller_model(model.n_obs, v, None)
-        out.append(loop_margins(LinearLoop(model.loop_plant(v), ctrl, v, np.zeros(model.n_act))))
+        out.append(loop_margins(LinearLoop(model.plant(v), ctrl, v, np.zeros(model.n_act))))
     return out
 
 
@@ -706,170 +627,7 @@ def report(env_config: dict) -> str:
     return "\n".join(lines)
 
 
-def ramp_onsets(spec: str, env_config: dict, conicity: float, seeds: int = 10) -> dict:
-    """The v1 ramp (the env config's speed ramp and world; pass one without randomisation) with
-    the conicity pinned by ``reset(options={"conicity": c})``, seeds 0..seeds-1: each seed's onset
-    of the env's hunting criterion (None: reached the end speed) and the peak channel forces."""
-    from bogie_env.envs.task import HuntingTask
+if __name__ == "__main__":  # the command line is bogie_agents.robust_cli; the older name still runs it
+    import runpy
 
-    from .policies import load_policy
-
-    policy = load_policy(spec, env_config)
-    task = HuntingTask(seeds, env_config)
-    rows = np.arange(seeds)
-    task.seed_rows(rows, list(range(seeds)))
-    task.reset_rows(rows, {"conicity": conicity})
-    policy.reset(seeds)
-    done = np.zeros(seeds, dtype=bool)
-    onset = np.full(seeds, np.nan)
-    peak = np.zeros(len(CHANNEL_NAMES))
-    while not done.all():
-        task.step(policy.act(task.obs))
-        live = ~done
-        peak = np.maximum(peak, np.abs(task.actuator_force[live]).max(axis=0))
-        finished = live & task.done
-        onset[finished] = task.onset_speed_kmh[finished]
-        done |= finished
-    return {"policy": spec, "conicity": conicity, "onset_kmh": [None if np.isnan(v) else round(float(v), 1) for v in onset],
-            "peak_force": [round(float(v)) for v in peak]}  # fmt: skip
-
-
-def route_run(spec: str, env_config: dict, steps: int = 6000, seeds: int = 6) -> dict:
-    """Closed-loop curving on a route env config (e.g. the ``v1_route`` variant without
-    randomisation), seeds 0..seeds-1, rows counted until their episode ends: mean wear number
-    (all, and where the frame is in a curve), flange-contact fraction, largest Y/Q, and each
-    channel's mean force signed by the curve's direction and mean |force| in curves."""
-    from bogie_env.envs.task import HuntingTask
-
-    from .policies import load_policy
-
-    policy = load_policy(spec, env_config)
-    task = HuntingTask(seeds, env_config)
-    rows = np.arange(seeds)
-    task.seed_rows(rows, list(range(seeds)))
-    task.reset_rows(rows)
-    policy.reset(seeds)
-    alive = np.ones(seeds, dtype=bool)
-    wear = flange = count = wear_curve = count_curve = 0.0
-    y_over_q = 0.0
-    signed, absolute, n_curve = np.zeros(len(CHANNEL_NAMES)), np.zeros(len(CHANNEL_NAMES)), 0
-    for _ in range(steps):
-        task.step(policy.act(task.obs))
-        live = alive.copy()
-        curve = live & (np.abs(task.curvature_1pm) > 1e-5)
-        wear += task.wear_number_n[live].sum()
-        flange += task.flange_contact[live].sum()
-        count += 2 * live.sum()
-        wear_curve += task.wear_number_n[curve].sum()
-        count_curve += 2 * curve.sum()
-        if live.any():
-            y_over_q = max(y_over_q, float(task.y_over_q[live].max()))
-        signed += (task.actuator_force[curve] * np.sign(task.curvature_1pm[curve])[:, None]).sum(axis=0)
-        absolute += np.abs(task.actuator_force[curve]).sum(axis=0)
-        n_curve += int(curve.sum())
-        alive &= ~task.done
-        if not alive.any():
-            break
-    return {"policy": spec, "mean_wear_number_n": wear / max(count, 1), "mean_wear_number_in_curves_n": wear_curve / max(count_curve, 1),
-            "flange_contact_fraction": flange / max(count, 1), "max_y_over_q": y_over_q,
-            "mean_signed_force_in_curves": (signed / max(n_curve, 1)).round(0).tolist(),
-            "mean_abs_force_in_curves": (absolute / max(n_curve, 1)).round(0).tolist()}  # fmt: skip
-
-
-def _progress_printer(total: int):
-    """A callback that prints ``[k/total] message`` with the elapsed and the estimated remaining time."""
-    start, done = time.time(), [0]
-
-    def progress(message: str) -> None:
-        done[0] += 1
-        elapsed = time.time() - start
-        print(f"[{done[0]}/{total}] {message}; {elapsed:.0f} s, about {elapsed / done[0] * (total - done[0]):.0f} s left",
-              file=sys.stderr, flush=True)  # fmt: skip
-
-    return progress
-
-
-def main(argv: list[str] | None = None) -> None:
-    """``python -m bogie_agents.robust design [--out FILE]``: design the gain table for the v1 env (stage 1);
-    ``python -m bogie_agents.robust retune --base STAGE1 [--out FILE]``: stage 2 (:mod:`bogie_agents.robust_track`);
-    ``python -m bogie_agents.robust report``: its linear onsets by conicity and its margins;
-    ``python -m bogie_agents.robust ramp --policy NAME``: onsets on the v1 ramp by conicity;
-    ``python -m bogie_agents.robust route``: closed-loop curving on the v1 route variant."""
-    import argparse
-
-    from bogie_env.envs.config import make_config
-
-    parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("what", choices=("design", "retune", "report", "ramp", "route"))
-    parser.add_argument("--base", default=None, help="retune: stage 1's gain table (python -m bogie_agents.robust design --out FILE)")
-    parser.add_argument("--steps", type=int, default=6000, help="route: env steps per episode at most")
-    parser.add_argument("--policy", action="append", help="ramp: policy names (default: passive and robust_damping)")
-    parser.add_argument("--conicities", default="0.025,0.05,0.1,0.2,0.3", help="ramp: comma-separated conicities")
-    parser.add_argument("--seeds", type=int, default=10, help="ramp, route: seeds 0..N-1")
-    parser.add_argument("--out", default=str(GAINS_FILE))
-    parser.add_argument("--variant", default="v1")
-    parser.add_argument("--w-track", default=None,
-                        help="retune: the track weight, one number or one per stage-2 row, comma-separated (default: the shipped table's)")
-    parser.add_argument("--w-yaw", type=float, default=None,
-                        help="retune: the weight of the wheelset-yaw command per mm of alignment (default: the shipped table's, 0.05)")
-    parser.add_argument("--washout-order", type=int, default=1, choices=WASHOUT_ORDERS,
-                        help="design: the filter bank's washout order (filter_bank; the shipped table: 1)")
-    args = parser.parse_args(argv)
-    config = make_config({"randomize": {}}, variant=args.variant)
-    if args.what == "report":
-        print(report(config))
-        return
-    if args.what == "route":
-        route_config = make_config({"randomize": {}}, variant="v1_route")
-        for spec in args.policy or ["passive", "robust_damping"]:
-            r = route_run(spec, route_config, args.steps, args.seeds)
-            print(" ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in r.items()), flush=True)
-        return
-    if args.what == "ramp":
-        for spec in args.policy or ["passive", "robust_damping"]:
-            for c in (float(v) for v in args.conicities.split(",")):
-                r = ramp_onsets(spec, config, c, args.seeds)
-                hunted = [v for v in r["onset_kmh"] if v is not None]
-                span = f"{min(hunted):g} / {float(np.median(hunted)):g} / {max(hunted):g}" if hunted else "none"
-                print(f"{spec} conicity {c:g}: hunted {len(hunted)}/{args.seeds}, onset min / median / max {span} km/h; "
-                      f"onsets {r['onset_kmh']}; peak forces {r['peak_force']}", flush=True)  # fmt: skip
-        return
-    if args.what == "retune":
-        from .robust_track import TrackSettings, retune_track
-
-        if args.base is None:
-            parser.error("retune needs --base (stage 1's table)")
-        track = TrackSettings()
-        if args.w_track is not None:
-            try:
-                weights = tuple(float(v) for v in args.w_track.split(","))
-            except ValueError:
-                parser.error(f"--w-track = {args.w_track!r}: allowed: one number or {len(track.speeds_kmh)} comma-separated numbers")
-            track.w_track = weights[0] if len(weights) == 1 else weights
-            try:
-                track.track_weight(track.speeds_kmh[0])  # checks the count
-            except ValueError as error:
-                parser.error(str(error))
-        if args.w_yaw is not None:
-            if not (math.isfinite(args.w_yaw) and args.w_yaw >= 0.0):
-                parser.error(f"--w-yaw = {args.w_yaw!r}: allowed: a finite number >= 0")
-            track.w_yaw = args.w_yaw
-        report_row = _progress_printer(len(track.speeds_kmh))
-        base = load_gains(args.base)
-        table = retune_track(config, base, track, progress=lambda row: report_row(json.dumps(row)))
-        table["command"] = (f"{base.get('command', '?')} --out STAGE1; python -m bogie_agents.robust retune --variant {args.variant} --base STAGE1"
-                            + (f" --w-track {args.w_track}" if args.w_track is not None else "")
-                            + (f" --w-yaw {args.w_yaw:g}" if args.w_yaw is not None else ""))  # fmt: skip
-        save_gains(table, args.out)
-        print(f"wrote {args.out}")
-        return
-    settings = DesignSettings(washout_order=args.washout_order)
-    table = tune(config, settings, _progress_printer(len(settings.speeds_kmh)))
-    table["command"] = f"python -m bogie_agents.robust design --variant {args.variant}" + (
-        f" --washout-order {args.washout_order}" if args.washout_order != 1 else "")
-    save_gains(table, args.out)
-    print(f"wrote {args.out}")
-
-
-if __name__ == "__main__":
-    main()
+    runpy.run_module("bogie_agents.robust_cli", run_name="__main__")

@@ -36,7 +36,7 @@ keep stage 1's gain factor 2 (:func:`check_lead`; docs/controllers.md, "Stage 2"
 It is zero from 300 km/h, so the nominal conicity's margins (300-450 km/h) and stage 1's
 high-speed rows are unchanged.
 
-    python -m bogie_agents.robust retune --base agents/robust_gains_stage1.json --out agents/robust_gains.json
+    python -m bogie_agents.robust_cli retune --base agents/robust_gains_stage1.json --out agents/robust_gains.json
 """
 
 from __future__ import annotations
@@ -49,10 +49,10 @@ import numpy as np
 from bogie_env.actuators import CHANNEL_NAMES
 from bogie_env.dynamics import N_STATES, N_TRACK, state_index
 from bogie_env.envs.config import merge_config
+from bogie_env.sampled_plant import PlantModel, discretize
 from bogie_env.stability import KMH
 
-from .controllers import discretize
-from .robust import (GAIN_SCALE, LAT, N_SIG, DesignModel, DesignPlant, DesignSettings, FilterBank, closed_loop,
+from .robust import (GAIN_SCALE, LAT, N_SIG, DesignModel, DesignSettings, FilterBank, closed_loop,
                      filter_bank, mode_score)  # fmt: skip
 
 
@@ -107,7 +107,7 @@ def track_input(model: DesignModel, speed_kmh: float) -> np.ndarray:
     return e_d
 
 
-def forced_response(plant: DesignPlant, bank: FilterBank, gains: np.ndarray, e_d: np.ndarray, speed_kmh: float,
+def forced_response(plant: PlantModel, bank: FilterBank, gains: np.ndarray, e_d: np.ndarray, speed_kmh: float,
                     semi_wheelbase_m: float, dt: float, wavelengths_m) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Per wavelength of a sinusoidal alignment (unit amplitude, the rear wheelset's delayed by
     2 L1 / V): the larger of the wheelsets' |y_i - y_t,i| (per unit alignment) and the larger

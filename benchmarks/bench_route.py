@@ -5,7 +5,7 @@ Each case steps the task (``HuntingTask``, the compiled batch step both front-en
 zero actions for ``--seconds`` after a warm-up, episodes reset in place when done. The route
 variant adds, per env step, the route lookups of the track samples (binary search over the
 layout's segments, at every RK4 stage) and one evaluation of the wheel-rail quantities
-(``analysis.curving.wheelset_details``) for the reward, termination and info. Its substep
+(``bogie_env.wheel_rail.wheelset_details``) for the reward, termination and info. Its substep
 count can differ from v1's (the accuracy criterion over its own speed range), so the table
 also gives the cost per substep. v1's own ramp (100 -> 600 km/h) is cheaper per step than a
 constant 250 km/h (fewer saturated contacts at low speed), so the like-for-like reference is

@@ -32,7 +32,7 @@ import numpy as np
 from bogie_env.dynamics import N_INPUTS, N_STATES, N_TRACK, state_index
 from bogie_env.envs.config import make_config
 from bogie_env.stability import KMH
-from bogie_agents.controllers import discretize
+from bogie_env.sampled_plant import discretize
 from bogie_agents.margins import linear_loop, plant_bogie
 from bogie_agents.stability_protocol import Settings, factory_for, policy_config, told_conicity
 

@@ -19,6 +19,8 @@ from typing import Any, Iterator
 
 import yaml
 
+from .errors import ConfigError
+
 
 def default_file_mode() -> int:
     """0666 minus the process umask: the mode ``open(path, "w")`` gives a new file."""
@@ -33,8 +35,6 @@ def atomic_output(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.is_dir():
-        from .params import ConfigError
-
         raise ConfigError(f"output {str(path)!r} is a folder; give a file path")
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
     os.close(fd)
@@ -77,8 +77,6 @@ class UniqueKeyLoader(yaml.SafeLoader):
 
 def load_yaml(path: str | Path) -> Any:
     """The YAML document in ``path`` (safe types only; duplicate keys and syntax errors are ConfigError)."""
-    from .params import ConfigError
-
     path = Path(path)
     try:
         text = path.read_text()

@@ -21,6 +21,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
+from .errors import ConfigError
 
 
 def _config_dir() -> Path:
@@ -35,10 +36,6 @@ def _config_dir() -> Path:
 #: Folder of the shipped configs (bogie/*.yaml presets, agents/*.yaml hyperparameters).
 CONFIG_DIR = _config_dir()
 DEFAULT_BOGIE_CONFIG = CONFIG_DIR / "bogie" / "paper.yaml"
-
-
-class ConfigError(ValueError):
-    """A configuration value or key is not allowed. The message names field, value and rule."""
 
 
 @dataclass(frozen=True)

@@ -315,11 +315,28 @@ def test_record_video(tmp_path):
     assert list(tmp_path.glob("*.mp4"))
 
 
-def test_config_defaults_are_documented_values():
-    c = make_config()
-    assert c["actuators"]["frame_lateral"]["max_force"] == 10e3
-    assert c["actuators"]["wheelset1_yaw"]["max_force"] == 15e3 and c["actuators"]["frame_yaw"]["bandwidth_hz"] == 10.0
-    assert c["track"]["rms"] == 5e-4 and math.isclose(c["hunting"]["rms_fraction"], 0.6)
+@pytest.mark.parametrize("channel, max_force, bandwidth_hz", [("frame_lateral", 7e3, 4.0), ("wheelset2_yaw", 12e3, 25.0)])
+def test_a_channels_force_limit_and_bandwidth_reach_its_lag(channel, max_force, bandwidth_hz):
+    """A held full command drives a channel's force along its first-order lag from the config:
+    ``F_n = F_max (1 - exp(-2 pi f_c n dt))`` (exact: the lag is solved in closed form per
+    step), with ``max_force`` in N (N m) and ``bandwidth_hz`` in Hz; the other channels stay at
+    zero. (A limit or a corner frequency read from the wrong key, or in rad/s, fails this.)"""
+    from bogie_env.actuators import CHANNEL_NAMES
+
+    config = make_config({"actuators": {channel: {"max_force": max_force, "bandwidth_hz": bandwidth_hz}},
+                          "track": {"rms": 0.0}, "initial_perturbation": 0.0})  # fmt: skip
+    task = HuntingTask(1, config)
+    task.seed_rows(np.array([0]), [0])
+    task.reset_rows(np.array([0]))
+    assert task.actuator_limits[task.channel_names.index(channel)] == max_force
+    action = np.zeros((1, task.action_dim))
+    action[0, task.channel_names.index(channel)] = 1.0
+    k = CHANNEL_NAMES.index(channel)
+    for n in range(1, 6):
+        task.step(action)
+        expected = max_force * (1.0 - math.exp(-2.0 * math.pi * bandwidth_hz * config["dt"] * n))
+        assert task.actuator_force[0, k] == pytest.approx(expected, rel=1e-12)
+        assert np.all(np.delete(task.actuator_force[0], k) == 0.0)
 
 
 def test_sensors_read_what_they_name():

@@ -18,6 +18,7 @@ import pytest
 
 pytest.importorskip("control")
 
+from bogie_agents import margin_oracles as O
 from bogie_agents import margins as M
 from bogie_agents.cli import main as cli_main
 from bogie_agents.controllers import LQGController, LQRController, PassiveController, SkyhookController
@@ -152,8 +153,8 @@ def test_passive_growth_rate_matches_simulation(env_config, model):
     assert predicted > 1.0  # the passive bogie hunts at 450 km/h
     x0 = loop.plant.x_eq.copy()
     x0[0] += 1e-9
-    out = M.simulate_loop(passive, env_config, SPEED_KMH, x0, loop.plant.force_eq, loop.u_eq, 4.0, substeps=2, model=model)
-    measured = M.envelope_growth_rate(out["t"], M.deviation(out["x"], loop.plant.x_eq)[:, 0], skip_s=1.0)
+    out = O.simulate_loop(passive, env_config, SPEED_KMH, x0, loop.plant.force_eq, loop.u_eq, 4.0, substeps=2, model=model)
+    measured = O.envelope_growth_rate(out["t"], O.deviation(out["x"], loop.plant.x_eq)[:, 0], skip_s=1.0)
     assert np.isfinite(measured)
     assert measured == pytest.approx(predicted, rel=0.05)
 
@@ -172,10 +173,10 @@ def _verdicts(policy, env_config, model, loop, margins, duration_s=6.0):
     x0 = np.repeat(loop.plant.x_eq[None], 5, axis=0)
     x0[:, 0] += 1e-8  # room for four decades of growth before the actuators saturate
     x0[:, 8] -= 1e-8
-    out = M.simulate_loop(policy, env_config, SPEED_KMH, x0, loop.plant.force_eq, loop.u_eq, duration_s,
+    out = O.simulate_loop(policy, env_config, SPEED_KMH, x0, loop.plant.force_eq, loop.u_eq, duration_s,
                           gains=gains, extra_delay_s=delays, substeps=10, model=model)  # fmt: skip
-    dev = M.deviation(out["x"], loop.plant.x_eq)
-    rates = np.array([M.envelope_growth_rate(out["t"], dev[:, r], floor=1e-9, skip_s=1.0) for r in range(5)])
+    dev = O.deviation(out["x"], loop.plant.x_eq)
+    rates = np.array([O.envelope_growth_rate(out["t"], dev[:, r], floor=1e-9, skip_s=1.0) for r in range(5)])
     return rates, dev[0], np.nan_to_num(dev[-1], nan=np.inf), np.nan_to_num(np.max(dev, axis=0), nan=np.inf)
 
 
@@ -313,7 +314,7 @@ def test_v1_plant_matches_the_env_observation_response(v1_config):
     from bogie_env.envs.task import HuntingTask
 
     passive = PassiveController(v1_config)
-    config = M.quiet_env_config(v1_config, passive, SPEED_KMH, initial_perturbation_m=1e-7, n_sub=40)
+    config = O.quiet_env_config(v1_config, passive, SPEED_KMH, initial_perturbation_m=1e-7, n_sub=40)
     task = HuntingTask(1, config)
     task.seed_rows(np.array([0]), [3])
     task.reset_rows(np.array([0]))
@@ -393,10 +394,10 @@ def test_fractional_delay_model_matches_whole_steps_and_simulation(v1_config, v1
     assert predicted[0] < 0 < predicted[-1]
     x0 = np.repeat(loop.plant.x_eq[None], taus.size, axis=0)
     x0[:, 0] += 1e-8
-    out = M.simulate_loop(v1_lqg, v1_config, SPEED_KMH, x0, loop.plant.force_eq, loop.u_eq, 8.0, extra_delay_s=extra,
+    out = O.simulate_loop(v1_lqg, v1_config, SPEED_KMH, x0, loop.plant.force_eq, loop.u_eq, 8.0, extra_delay_s=extra,
                           substeps=10, model=loop.plant.model)  # fmt: skip
-    dev = M.deviation(out["x"], loop.plant.x_eq)
-    measured = np.array([M.envelope_growth_rate(out["t"], dev[:, r], floor=1e-10, skip_s=1.0) for r in range(taus.size)])
+    dev = O.deviation(out["x"], loop.plant.x_eq)
+    measured = np.array([O.envelope_growth_rate(out["t"], dev[:, r], floor=1e-10, skip_s=1.0) for r in range(taus.size)])
     np.testing.assert_allclose(measured, predicted, rtol=0.05, atol=0.02)
     sampled = v1_lqg_margins["loops"]["frame_lateral"]["delay_margin_sampled_s"]
     assert taus[1] < sampled < taus[2]
@@ -408,11 +409,11 @@ def test_v1_passive_growth_and_frequency_match_the_env(v1_config):
     loop = M.linear_loop(passive, v1_config, SPEED_KMH)
     eig = loop.eigenvalues()
     lead = eig[np.argmax(np.abs(eig))]
-    out = M.simulate_env(passive, v1_config, SPEED_KMH, 4.0)
-    dev = M.deviation(out["x"][:, None, :], loop.plant.x_eq)[:, 0]
-    assert M.envelope_growth_rate(out["t"], dev, skip_s=1.0) == pytest.approx(loop.growth_rate(), rel=0.05)
+    out = O.simulate_env(passive, v1_config, SPEED_KMH, 4.0)
+    dev = O.deviation(out["x"][:, None, :], loop.plant.x_eq)[:, 0]
+    assert O.envelope_growth_rate(out["t"], dev, skip_s=1.0) == pytest.approx(loop.growth_rate(), rel=0.05)
     y1 = out["x"][:, 0] - loop.plant.x_eq[0]
-    assert M.dominant_frequency_hz(out["t"], y1, skip_s=1.0) == pytest.approx(abs(np.angle(lead)) / loop.dt / (2 * np.pi), rel=0.01)
+    assert O.dominant_frequency_hz(out["t"], y1, skip_s=1.0) == pytest.approx(abs(np.angle(lead)) / loop.dt / (2 * np.pi), rel=0.01)
 
 
 def test_v1_extra_delay_verdicts_hold_in_the_env(v1_config, v1_lqg, v1_lqg_loop, v1_lqg_margins):
@@ -423,9 +424,9 @@ def test_v1_extra_delay_verdicts_hold_in_the_env(v1_config, v1_lqg, v1_lqg_loop,
     for extra, sign in ((k, -1), (k + 1, 1)):
         predicted = v1_lqg_loop.with_extra_delay(extra).growth_rate()
         assert np.sign(predicted) == sign and abs(predicted) > 0.5  # a discriminating speed
-        out = M.simulate_env(v1_lqg, v1_config, SPEED_KMH, 5.0, extra_delay_steps=extra)
-        dev = M.deviation(out["x"][:, None, :], v1_lqg_loop.plant.x_eq)[:, 0]
-        measured = M.envelope_growth_rate(out["t"], dev, skip_s=1.0)
+        out = O.simulate_env(v1_lqg, v1_config, SPEED_KMH, 5.0, extra_delay_steps=extra)
+        dev = O.deviation(out["x"][:, None, :], v1_lqg_loop.plant.x_eq)[:, 0]
+        measured = O.envelope_growth_rate(out["t"], dev, skip_s=1.0)
         assert measured == pytest.approx(predicted, rel=0.1), extra
 
 
@@ -534,9 +535,9 @@ def test_v1_sensor_model_lqg_model_matches_act_and_its_delay_verdicts_hold(v1_co
     for extra, sign in ((k, -1), (k + 1, 1)):
         predicted = loop.with_extra_delay(extra).growth_rate()
         assert np.sign(predicted) == sign and abs(predicted) > 0.2, (extra, predicted)
-        out = M.simulate_env(policy, v1_config, SPEED_KMH, 6.0, extra_delay_steps=extra)
-        dev = M.deviation(out["x"][:, None, :], loop.plant.x_eq)[:, 0]
-        assert np.sign(M.envelope_growth_rate(out["t"], dev, skip_s=1.0)) == sign, extra
+        out = O.simulate_env(policy, v1_config, SPEED_KMH, 6.0, extra_delay_steps=extra)
+        dev = O.deviation(out["x"][:, None, :], loop.plant.x_eq)[:, 0]
+        assert np.sign(O.envelope_growth_rate(out["t"], dev, skip_s=1.0)) == sign, extra
 
 
 def test_v1_lqg_design_model_is_the_margins_plant(v1_config, v1_sensor_lqg):

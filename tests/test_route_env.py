@@ -2,7 +2,7 @@
 limit and the curving reward against independent evaluations.
 
 Planted bugs each test catches (checked by hand, docs/environment.md): the curvature sign
-flipped in ``analysis.curving.wheelset_details`` (wear oracle); the cant left out of the info's
+flipped in ``bogie_env.wheel_rail.wheelset_details`` (wear oracle); the cant left out of the info's
 cant deficiency (geometry test).
 """
 

@@ -59,7 +59,7 @@ from ..simulator import (
     chunk_bounds,
     LoopChooser,
 )
-from ..analysis.curving import DETAIL_NAMES, FLANGE, GUIDING, Y_L, Y_R, wheelset_details, wheelset_wear_number
+from ..wheel_rail import DETAIL_NAMES, GUIDING, Y_L, Y_R, wheelset_details, wheelset_wear_number
 from ..route import CANT_BASE_M, GRAVITY
 from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, CANT_FRAME, CURVATURE_FRAME, TrackInput, alignment_profile, alignment_profile_at_level, perfect_track
 from . import scenario as scenarios
@@ -220,7 +220,7 @@ def _curving_reward(reward, wear1, wear2, flange1, flange2, progress, cfg):
 def _curving_quantities(x, v1, track_sample, p, details, info):
     """The wheel-rail quantities of a curving assessment at the end of the step into the info
     row (wear number, flange contact, Y/Q, ΣY per wheelset; curvature and cant deficiency),
-    through :func:`bogie_env.analysis.curving.wheelset_details`. Returns the largest Y/Q."""
+    through :func:`bogie_env.wheel_rail.wheelset_details`. Returns the largest Y/Q."""
     inv_v = 1.0 / v1
     q = 0.5 * p[P_WPA]
     y_over_q = -1e300

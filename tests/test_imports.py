@@ -1,0 +1,198 @@
+"""The project's import graph: no circle among its modules, the library below the agents, the
+env below the analysis layer.
+
+Every ``import`` and ``from ... import`` statement counts, at module level or inside a function
+(a function-level import is a dependency all the same, only a late one). An import names the
+deepest project module it reaches: ``from .margins import PlantModel`` is an edge to
+``bogie_agents.margins``, ``from . import task`` one to ``bogie_env.envs.task``. A package's
+``__init__`` is not implied by importing a module inside it (that edge runs the other way by
+construction). Modules named by string (``importlib.import_module``, the protocol's part
+registry) are not imports here.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+#: package name -> its source folder (the repository folder agents/ installs as bogie_agents)
+PACKAGES = {"bogie_env": ROOT / "bogie_env", "bogie_agents": ROOT / "agents"}
+
+
+def project_modules(packages: dict[str, Path]) -> dict[str, Path]:
+    """Dotted module name -> source file, for every ``.py`` file below each package folder."""
+    modules = {}
+    for package, folder in packages.items():
+        for path in sorted(folder.rglob("*.py")):
+            parts = [package, *path.relative_to(folder).with_suffix("").parts]
+            if parts[-1] == "__init__":
+                parts.pop()
+            modules[".".join(parts)] = path
+    return modules
+
+
+def _absolute(module: str, is_package: bool, level: int, name: str | None) -> str:
+    """The absolute name of ``from <level dots><name> import ...`` written in ``module``."""
+    if not level:
+        return name or ""
+    base = module.split(".") if is_package else module.split(".")[:-1]
+    base = base[: len(base) - (level - 1)]
+    return ".".join(base + ([name] if name else []))
+
+
+def _project_module(name: str, modules: dict[str, Path]) -> str | None:
+    """The deepest project module that ``name`` (a module or a name inside one) is, or is in."""
+    while name and name not in modules:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def import_graph(packages: dict[str, Path]) -> dict[str, set[str]]:
+    """Module -> the project modules it imports (module and function level)."""
+    modules = project_modules(packages)
+    graph: dict[str, set[str]] = {}
+    for module, path in modules.items():
+        is_package = path.name == "__init__.py"
+        targets: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = _absolute(module, is_package, node.level, node.module)
+                names = [f"{base}.{alias.name}" for alias in node.names]  # a submodule, else a name in base
+            else:
+                continue
+            for name in names:
+                target = _project_module(name, modules)
+                if target is not None and target != module:
+                    targets.add(target)
+        graph[module] = targets
+    return graph
+
+
+def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One closed path ``[a, b, ..., a]`` per strongly connected group of modules that import
+    each other (empty: the graph has no circle)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    groups: list[set[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan's algorithm (the graph is small: recursion is fine)
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = set()
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                group.add(w)
+                if w == v:
+                    break
+            if len(group) > 1 or v in graph.get(v, ()):
+                groups.append(group)
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return [_closed_path(graph, group) for group in groups]
+
+
+def _closed_path(graph: dict[str, set[str]], group: set[str]) -> list[str]:
+    """A shortest circle through the group's first module (breadth-first, inside the group)."""
+    start = min(group)
+    previous: dict[str, str] = {}
+    queue = [start]
+    while queue:
+        v = queue.pop(0)
+        for w in sorted(graph[v] & group):
+            if w == start:
+                path = [v]
+                while path[-1] != start:
+                    path.append(previous[path[-1]])
+                return [*reversed(path), start]
+            if w not in previous:
+                previous[w] = v
+                queue.append(w)
+    raise AssertionError(f"no circle through {start} in {sorted(group)}")  # a group is strongly connected
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, set[str]]:
+    return import_graph(PACKAGES)
+
+
+def test_the_graph_sees_the_projects_imports(graph):
+    """A graph that missed the imports would pass the tests below for nothing: it has every
+    module, and the edges of known module- and function-level imports."""
+    assert {"bogie_env", "bogie_env.envs.task", "bogie_agents.margins", "bogie_agents.stability_protocol"} <= set(graph)
+    assert "bogie_env.wheel_rail" in graph["bogie_env.envs.task"]  # from ..wheel_rail import ...
+    assert "bogie_agents.controllers" in graph["bogie_agents.margins"]  # function-level, in controller_model
+    assert "bogie_env.envs.task" in graph["bogie_agents.controllers"]  # from bogie_env.envs import task as T
+
+
+def test_no_import_circle_among_the_projects_modules(graph):
+    cycles = find_cycles(graph)
+    assert not cycles, "import circles: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_library_imports_nothing_from_the_agents(graph):
+    wrong = {m: sorted(t for t in targets if t.startswith("bogie_agents"))
+             for m, targets in graph.items() if m.startswith("bogie_env")}  # fmt: skip
+    assert not {m: t for m, t in wrong.items() if t}
+    for path in PACKAGES["bogie_env"].rglob("*.py"):  # nor by the repository folder's own name
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                assert node.module.split(".")[0] not in ("agents", "bogie_agents"), (path, node.module)
+            if isinstance(node, ast.Import):
+                assert all(a.name.split(".")[0] not in ("agents", "bogie_agents") for a in node.names), path
+
+
+def test_the_env_imports_no_analysis_module(graph):
+    wrong = {m: sorted(t for t in targets if t.startswith("bogie_env.analysis"))
+             for m, targets in graph.items() if m.startswith("bogie_env.envs")}  # fmt: skip
+    assert not {m: t for m, t in wrong.items() if t}
+
+
+def _write(folder: Path, files: dict[str, str]) -> None:
+    for name, text in files.items():
+        path = folder / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+
+
+def test_a_planted_function_level_circle_is_found(tmp_path):
+    """Three modules in a circle, one edge a function-level relative import, one through a
+    subpackage's ``from . import``: the circle is found and named; without the function-level
+    import there is none."""
+    files = {
+        "__init__.py": "",
+        "a.py": "from .sub import b\n",
+        "sub/__init__.py": "",
+        "sub/b.py": "from . import c\n",
+        "sub/c.py": "import os\n\ndef late():\n    from ..a import anything\n    return anything\n",
+    }
+    _write(tmp_path / "pkg", files)
+    graph = import_graph({"pkg": tmp_path / "pkg"})
+    assert graph["pkg.a"] == {"pkg.sub.b"} and graph["pkg.sub.b"] == {"pkg.sub.c"} and graph["pkg.sub.c"] == {"pkg.a"}
+    assert find_cycles(graph) == [["pkg.a", "pkg.sub.b", "pkg.sub.c", "pkg.a"]]
+    _write(tmp_path / "pkg", {"sub/c.py": "import os\n"})
+    assert find_cycles(import_graph({"pkg": tmp_path / "pkg"})) == []
+
+
+def test_a_planted_two_module_circle_across_packages_is_found(tmp_path):
+    _write(tmp_path / "lib", {"__init__.py": "", "x.py": "def f():\n    import app.y\n"})
+    _write(tmp_path / "app", {"__init__.py": "", "y.py": "from lib.x import f\n"})
+    graph = import_graph({"lib": tmp_path / "lib", "app": tmp_path / "app"})
+    assert find_cycles(graph) == [["app.y", "lib.x", "app.y"]]
