@@ -8,12 +8,23 @@ milliseconds; and, per row of that vector env, the microseconds of the task's co
 and of the simulator's interval alone. Each is the best of 5 repeats of ``time.process_time`` (CPU time, which a busy
 host inflates far less than wall time). Run two trees one after the other, twice, and compare
 the ratios; the absolute numbers belong to the host's load of the moment.
+
+``--interval-loop`` runs, instead, the simulator's interval of the default env (Bogie/Hunting-v0:
+alignment profile, force channels) on the calling thread in a loop for ``--seconds``: the load to
+profile the stepping kernels with::
+
+    python benchmarks/bench_cpu.py --interval-loop [--rows 4096] [--seconds 10]
+    perf record -o perf.data python benchmarks/bench_cpu.py --interval-loop --seconds 10 && perf report -i perf.data --sort sym
+
+It prints the CPU nanoseconds per row of one interval (best of the loop's one-second batches).
+numba's machine code has no symbols for perf: perf shows addresses, and the NRT_incref /
+NRT_decref helpers are the short 'lock inc/dec' functions (disassemble the page that holds them).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 import time
 
 import numpy as np
@@ -32,7 +43,38 @@ def best(func, number: int, repeats: int = 5) -> float:
     return best_time(func, number, repeats, clock=time.process_time)
 
 
-def main() -> None:
+def interval_loop(rows: int, seconds: float) -> None:
+    """The default env's interval on the calling thread, in a loop; prints the best CPU-ns per row."""
+    from bogie_env.envs.task import HuntingTask
+    from bogie_env.simulator import _advance_serial
+
+    task = HuntingTask(rows, num_threads=1)
+    task.reset_rows(np.arange(rows))
+    sim = task.sim
+    call = (sim.rows, sim.channels, sim._track, sim.dt, sim.n_sub)
+    _advance_serial(*call)
+    best_s = float("inf")
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        start, calls = time.process_time(), 0
+        while time.process_time() - start < 1.0:
+            _advance_serial(*call)
+            calls += 1
+        best_s = min(best_s, (time.process_time() - start) / calls)
+    print(f"interval on the calling thread, {rows} rows, {sim.n_sub} substeps: {best_s / rows * 1e9:.0f} CPU-ns per row")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("label", nargs="?", default="", help="printed before the JSON line (e.g. the tree)")
+    parser.add_argument("--interval-loop", action="store_true",
+                        help="loop the default env's interval instead (the load for perf)")
+    parser.add_argument("--rows", type=int, default=4096, help="rows of --interval-loop")
+    parser.add_argument("--seconds", type=float, default=10.0, help="seconds of --interval-loop")
+    args = parser.parse_args(argv)
+    if args.interval_loop:
+        interval_loop(args.rows, args.seconds)
+        return
     n = 4096
     figures = {}
     model = BogieModel()
@@ -53,7 +95,7 @@ def main() -> None:
     figures["vec4096_sim_advance_us_per_row"] = best(task.sim.advance, 10) / n * 1e6
     critical_speed(model)
     figures["critical_speed_ms"] = best(lambda: critical_speed(model), 50) * 1e3
-    print(sys.argv[1] if len(sys.argv) > 1 else "", json.dumps({k: round(v, 4) for k, v in figures.items()}))
+    print(args.label, json.dumps({k: round(v, 4) for k, v in figures.items()}))
 
 
 if __name__ == "__main__":

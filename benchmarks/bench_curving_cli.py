@@ -2,6 +2,7 @@
 the floor any numba program pays on the same host.
 
     python benchmarks/bench_curving_cli.py [--runs 7] [--json] [--no-bytecode-cache]
+    python benchmarks/bench_curving_cli.py --trees BEFORE_TREE AFTER_TREE [--runs 8]
 
 The command runs as the ``bogie`` console script does (``python -m bogie_agents``, the installed
 package: ``make`` installs this tree editable into .venv), once to warm the kernel cache, then
@@ -17,6 +18,13 @@ cached kernel (which imports ``scipy.linalg``), none of which the package can av
 alternate, so a busy host slows both alike; the ratio command / floor is the figure that carries
 across hosts. Prints the median and minimum wall time, the child's user + system CPU
 (``getrusage``) and the load average before and after.
+
+``--trees BEFORE_TREE AFTER_TREE`` times the same command in two trees instead of against the
+floor. Each tree is a plain checkout: the command runs with that tree's ``bogie_env`` and its
+``agents/`` (linked as ``bogie_agents`` in a temporary folder) first on PYTHONPATH, ahead of any
+installed copy, once in each tree to warm its kernel cache, then ``--runs`` times (default 8 here)
+alternating between the trees (and which goes first), so a busy host slows both alike. Prints the
+median and minimum wall time and the child's user and system CPU (``getrusage``) per tree.
 """
 
 from __future__ import annotations
@@ -86,15 +94,58 @@ def measure(runs: int, bytecode_cache: bool = True) -> dict:
     return result
 
 
+def tree_path(tree: str, links: Path) -> str:
+    """PYTHONPATH for ``tree``: the tree (``bogie_env``) and a folder holding ``bogie_agents`` -> its ``agents/``."""
+    folder = links / str(abs(hash(tree)))
+    folder.mkdir(exist_ok=True)
+    if not (folder / "bogie_agents").exists():
+        (folder / "bogie_agents").symlink_to(Path(tree).resolve() / "agents")
+    return os.pathsep.join([str(Path(tree).resolve()), str(folder)])
+
+
+def run_in_tree(path: str) -> tuple[float, float, float]:
+    """Wall, user and system seconds of one run of the command with one tree (``path``) on the path."""
+    env = dict(os.environ, PYTHONPATH=path)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    subprocess.run([sys.executable, *COMMAND], env=env, stdout=subprocess.DEVNULL, check=True)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, after.ru_utime - before.ru_utime, after.ru_stime - before.ru_stime
+
+
+def compare_trees(trees: list[str], runs: int) -> None:
+    """Warm both trees, time them interleaved, print one line per tree."""
+    with tempfile.TemporaryDirectory() as links:
+        paths = {tree: tree_path(tree, Path(links)) for tree in trees}
+        for tree in trees:
+            run_in_tree(paths[tree])
+        times: dict[str, list[tuple[float, float, float]]] = {tree: [] for tree in trees}
+        for round_ in range(runs):
+            for tree in trees if round_ % 2 == 0 else trees[::-1]:  # alternate which tree goes first
+                times[tree].append(run_in_tree(paths[tree]))
+    for tree in trees:
+        wall, user, system = zip(*times[tree])
+        print(f"{tree}: wall median {statistics.median(wall):.3f} min {min(wall):.3f} s | user median "
+              f"{statistics.median(user):.3f} min {min(user):.3f} s | sys median {statistics.median(system):.3f} s (n={runs})")  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=7, help="timed runs of each (after one warm-up)")
+    parser.add_argument("--runs", type=int, default=None, help="timed runs of each (after one warm-up; default 7, 8 with --trees)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--no-bytecode-cache", action="store_true",
                         help="keep the caller's PYTHONDONTWRITEBYTECODE (default: removed, so the warm-up writes .pyc files)")
+    parser.add_argument("--trees", nargs=2, metavar=("BEFORE_TREE", "AFTER_TREE"),
+                        help="time the command in two checkouts against each other instead of against the floor")
     args = parser.parse_args(argv)
+    if args.runs is None:
+        args.runs = 8 if args.trees else 7
     if args.runs < 1:
         parser.error(f"--runs {args.runs} must be >= 1")
+    if args.trees:
+        compare_trees(args.trees, args.runs)
+        return
     result = measure(args.runs, bytecode_cache=not args.no_bytecode_cache)
     if args.json:
         print(json.dumps(result, indent=2))

@@ -2,7 +2,7 @@
 with bogie_env: Table 1 typed from the paper, a Carlson-integral Hertz solution, Kalker's table,
 Klingel's wavelength, a roll-locked textbook bogie and the sympy vector-mechanics derivation.
 
-Each test fails for at least one planted bug (``benchmarks/planted_bugs.py``, docs/model.md
+Each test fails for at least one planted bug (``studies/planted_bugs.py``, docs/model.md
 Section 10): a creep coefficient off by 10 %, a wrong conicity, mass or spring position, a
 printed sign."""
 

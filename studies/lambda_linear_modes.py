@@ -3,7 +3,7 @@ loop's response to a sinusoidal track alignment (the wheelsets' displacement rel
 per unit alignment), from the sampled linear loop of :mod:`bogie_agents.margins` (bogie, actuator
 lags, loop delay, sensor filters, the controller's own linear model).
 
-    python benchmarks/lambda_linear_modes.py --policy passive --policy robust_damping \
+    python studies/lambda_linear_modes.py --policy passive --policy robust_damping \
         --policy lqr --conicity 0.1 --speeds 120:260:10 [--gains FILE] [--wavelengths 10,15,20,24,30,40]
 
 Modes: eigenvalues z of the closed-loop matrix, s = ln z / dt; oscillatory lateral modes (the
@@ -17,7 +17,7 @@ the bogie's right-hand side in the track samples (the alignment under each wheel
 2 L1 / V for the rear one); the relative displacement y_i - y_track,i per unit alignment is
 evaluated at the frequency V / wavelength (the discrete loop at the env step, the alignment held
 over a step; the sensors see the wheelsets relative to the frame, so the track enters only
-through the bogie). The time-domain side: ``benchmarks/lambda_low_speed_diagnosis.py``.
+through the bogie). The time-domain side: ``studies/lambda_low_speed_diagnosis.py``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The curving assist in a steady curve: time simulation in the v1 route world against the
 steady-state solver with the same constant torques.
 
-    python benchmarks/curving_assist_steady.py [--radius 3000] [--cant 0.16] [--speed 250]
+    python studies/curving_assist_steady.py [--radius 3000] [--cant 0.16] [--speed 250]
 
 A left curve (50 m tangent, 250 m transition, 2 km of curve), perfect track, no initial
 perturbation, the v1 sensors with seed 0's biases and noise, loop delay and rate limits;

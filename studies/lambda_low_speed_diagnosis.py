@@ -2,7 +2,7 @@
 on the v1 alert track, on a perfect track (same seed: same start, perturbation, sensor bias and
 noise) and on the alert track with the start shifted along it.
 
-    python benchmarks/lambda_low_speed_diagnosis.py --policy pretrained --seeds 3,9,0 \
+    python studies/lambda_low_speed_diagnosis.py --policy pretrained --seeds 3,9,0 \
         --speeds 130:260:10 --modes alert,perfect,shift200 [--conicity 0.1] [--gains FILE] [--json OUT]
 
 Each row is one protocol v2 run (``agents/stability_protocol.py``: 20 s at a fixed speed, the first

@@ -1,11 +1,12 @@
 """Plant curving bugs in copies of the repository and record which curving tests fail.
 
-    python benchmarks/planted_curving_bugs.py [BUG ...]
+    python studies/planted_curving_bugs.py [BUG ...]
 
 Each bug is a textual edit of a copy in a temporary folder (the repository is not touched);
 the tests run with NUMBA_DISABLE_JIT=1 (no compile per copy; about a minute per bug). The
 results are listed in docs/model.md Section 11.
 """
+import argparse
 import os
 import re
 import shutil
@@ -34,7 +35,13 @@ BUGS = [
     ("no_heading_C6", "bogie_env/dynamics.py",
      [("yaw_moment = yaw_k * (x[o + 4] + heading - psib)", "yaw_moment = yaw_k * (x[o + 4] - psib)")]),
 ]
-only = sys.argv[1:]
+parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+parser.add_argument("bugs", nargs="*", metavar="BUG",
+                    help="bugs to plant (default: all): " + ", ".join(name for name, _, _ in BUGS))
+only = parser.parse_args().bugs
+unknown = sorted(set(only) - {name for name, _, _ in BUGS})
+if unknown:
+    parser.error(f"unknown bug(s) {', '.join(unknown)}")
 files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=ROOT, capture_output=True, text=True).stdout.split()
 for name, path, edits in BUGS:
     if only and name not in only:

@@ -1,6 +1,6 @@
 """Protocol v2's closed-loop critical speed for a few columns, on any block of seeds.
 
-    python benchmarks/protocol_columns.py --seed 10 [--policy passive --policy robust_damping
+    python studies/protocol_columns.py --seed 10 [--policy passive --policy robust_damping
         --policy pretrained] [--columns nominal,conicity:0.05,conicity:0.1] [--n-sub 20] [--flange-time-limit 0.03]
 
 ``--seed S`` runs the seeds S, S+1, ..., S+9 (``Settings.seed``; a seed sets the start on the

@@ -5,9 +5,9 @@ itself is never touched. For each bug the script reports the critical speed and 
 frequency the bugged code gives (``bogie critical-speed --json``) and, unless
 ``--no-tests``, which of the physics tests fail::
 
-    python benchmarks/planted_bugs.py                      # every bug, the physics tests
-    python benchmarks/planted_bugs.py --bug eq6_gyro_sign --no-tests   # one bug, speed only
-    python benchmarks/planted_bugs.py --list
+    python studies/planted_bugs.py                      # every bug, the physics tests
+    python studies/planted_bugs.py --bug eq6_gyro_sign --no-tests   # one bug, speed only
+    python studies/planted_bugs.py --list
 
 Slow (a cold numba compile and the physics tests per bug, minutes each); not part of the test
 suite. Output: a markdown table on stdout and ``--json PATH`` if given.

@@ -1,7 +1,7 @@
 """The fraction of seeds that fail protocol v2's criterion at fixed speeds, at several
 integration steps: whether a step changes the physics or only which seeds fail.
 
-    python benchmarks/fixed_speed_failure_rate.py [--policy robust_steering] \
+    python studies/fixed_speed_failure_rate.py [--policy robust_steering] \
         [--n-sub 10,40] [--conicity 0.025] [--speeds 460:600:20] [--seeds 40]
 
 Each (seed, speed) row is one protocol v2 run (``agents/stability_protocol.py``: 20 s at a fixed

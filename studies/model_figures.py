@@ -1,6 +1,6 @@
 """Print the model figures quoted in docs/model.md that no ``bogie`` subcommand prints.
 
-    python benchmarks/model_figures.py          # a few seconds; the sympy part about a minute
+    python studies/model_figures.py          # a few seconds; the sympy part about a minute
 
 Sections: the nominal contact against the independent oracle (tests/oracles/contact_chain.py),
 the equilibrium's spin-creep terms, the separable vertical pair, the fastest eigenvalue, the

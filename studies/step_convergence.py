@@ -10,8 +10,8 @@
    step and half the v1 step. Same seeds, same track positions and noise in every run: the
    differences are the integration's.
 
-    python benchmarks/step_convergence.py            # the figures in docs/environment.md
-    python benchmarks/step_convergence.py --quick    # fewer seeds and conicities
+    python studies/step_convergence.py            # the figures in docs/environment.md
+    python studies/step_convergence.py --quick    # fewer seeds and conicities
 """
 
 from __future__ import annotations

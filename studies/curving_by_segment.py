@@ -1,6 +1,6 @@
 """Where on each shipped route a controller's flange contact and wear occur: per route segment.
 
-    python benchmarks/curving_by_segment.py [--policy passive --policy robust_damping ...]
+    python studies/curving_by_segment.py [--policy passive --policy robust_damping ...]
         [--seeds 8] [--perfect-track]
 
 The curving evaluation's conditions (``bogie_agents.curving_evaluation.route_config``: the v1

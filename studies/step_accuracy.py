@@ -1,6 +1,6 @@
 """Accuracy of the RK4 step chosen from the spectrum: limit cycles and ramp onset at 2, 3, 8 substeps.
 
-    python benchmarks/step_accuracy.py
+    python studies/step_accuracy.py
 
 Prints the limit-cycle amplitude of y1 at 450 and 370 km/h, and the onset speed (1-s peak of
 |y1 - track| above 4.5 mm) of a 1 m/s^2 ramp from 300 km/h on a 0.5 mm rms track, for 2, 3 and 8

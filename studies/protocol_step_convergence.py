@@ -1,7 +1,7 @@
 """Protocol v2's closed-loop critical speeds with v1's integration step and finer ones, beside
 the same protocol on bogies that differ by a physically negligible amount.
 
-    python benchmarks/protocol_step_convergence.py [--policy passive --policy pretrained]
+    python studies/protocol_step_convergence.py [--policy passive --policy pretrained]
         [--n-sub 10,20,40] [--replicas 5] [--relative 1e-4] [--perturb dampers|start]
         [--columns conicity:0.1] [--duration-s 40]
 

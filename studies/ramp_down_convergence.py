@@ -1,7 +1,7 @@
 """Protocol v2's ``ramp_down`` part at several integration steps and ramp rates: how far its
 values move when the step or the deceleration is halved.
 
-    python benchmarks/ramp_down_convergence.py [--policy passive --policy pretrained] \
+    python studies/ramp_down_convergence.py [--policy passive --policy pretrained] \
         [--n-sub 10,20] [--decel 0.25] [--conicities 0.025,0.05,0.1,0.2,0.3] [--seed 0] [--seeds 10] [--ideal] \
         [--stride-kmh 2]
 

@@ -1,7 +1,7 @@
 """robust_damping at conicity 0.1 with an edited command lead, or with edited actuator limits:
 the protocol-v2 column and the smallest command factor the design model tolerates near the lead.
 
-    python benchmarks/lambda_lead.py [--gains agents/robust_gains.json] \
+    python studies/lambda_lead.py [--gains agents/robust_gains.json] \
         [--lead-s 0.01 --lead-lowpass-hz 4 --lead-speeds 240,270] [--env-override JSON] [--columns conicity:0.1]
 
 - ``--lead-s`` / ``--lead-lowpass-hz`` / ``--lead-speeds``: replace the table's lead (0: none) on a

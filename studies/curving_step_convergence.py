@@ -1,6 +1,6 @@
 """The curving columns at v1's integration step and at half of it.
 
-    python benchmarks/curving_step_convergence.py [--policy pretrained] [--seeds 8]
+    python studies/curving_step_convergence.py [--policy pretrained] [--seeds 8]
 
 Every shipped route at its design speed, at the RK4 substeps per 10 ms env step that v1's
 accuracy criterion chooses for the curving runs (``integration.n_sub`` null) and at twice as many
