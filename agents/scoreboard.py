@@ -187,7 +187,7 @@ def headline_table(payload: dict) -> str:
 
 
 def full_table(payload: dict) -> str:
-    from .results import v2_table
+    from .tables import v2_table
 
     return v2_table(payload.get("policies", []), payload.get("integration_n_sub"))
 

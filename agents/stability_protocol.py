@@ -983,7 +983,9 @@ def ramp_down_runs(ctx: PartContext, world: Mapping[str, Any] | None = None,
     start), holds the ceiling for ``transient_s`` and ramps down at ``ramp_down_decel`` to the
     floor, where it runs one more window. The protocol's criterion judges windows as long as a
     fixed-speed run's assessed time (15 s: 13.5 km/h of the default ramp), one starting every
-    ``ramp_down_stride_kmh``; the seed's value is where the hunting the ramp began with stops
+    ``ramp_down_stride_kmh`` (v3 judges a window's flange contact on the same length of ramp
+    centred on the window's top speed: its majority rule locates the end of sustained contact at
+    the middle of what it judges); the seed's value is where the hunting the ramp began with stops
     (:func:`hunting_end`): the lowest speed at which that hunting, e.g. a limit cycle of the
     saturated loop, survives. The fixed-speed search asks whether a 12 mm start grows into
     hunting; this asks whether the controller gets the bogie out of hunting, and the two differ
@@ -1043,9 +1045,13 @@ def ramp_down_runs(ctx: PartContext, world: Mapping[str, Any] | None = None,
     judging = Progress(ctx.progress.label, ctx.progress.enabled)
     for w, a in enumerate(starts):
         part = slice(a, a + length)
-        r = assess(history[:, :, part], contact[:, part].mean(axis=1), blown_before | blown[:, part].any(axis=1),
+        # v3's flange rule is a majority over the window's seconds, which puts the end of sustained
+        # contact at the window's middle: it judges the window's length centred on the window's top
+        # speed, so that the value is where the contact stops (v2's any-contact rule: the window)
+        flange = slice(max(0, a - length // 2), a + length - length // 2) if s.flange_sustained_fraction else part
+        r = assess(history[:, :, part], contact[:, flange].mean(axis=1), blown_before | blown[:, part].any(axis=1),
                    np.full(n, speed[part].mean() / 3.6), dt, axle, task.base_params.mb, s,
-                   flange_occupancy=flange_occupancy(contact[:, part], dt, s.flange_window_s))  # fmt: skip
+                   flange_occupancy=flange_occupancy(contact[:, flange], dt, s.flange_window_s))  # fmt: skip
         failing[:, w] = ~r.passed
         judging.report(f"ramp down: judging window {w + 1}/{starts.size}", w + 1, starts.size - w - 1)
     top_kmh = speed[starts]
