@@ -217,7 +217,7 @@ class BogieHuntingEnv(gym.Env):
         self._needs_reset = False
         if self.render_mode == "human":
             self.render()
-        return self.task.obs[0].copy(), self.task.info_dict(0)
+        return self.task.obs[0].copy(), {**self.task.info_dict(0), "scenario": self.task.scenario_summary(0)}
 
     def step(self, action):
         if self._needs_reset:
