@@ -36,6 +36,7 @@ FIXED = {"speed": {"start_kmh": 300.0, "end_kmh": 300.0, "accel": 0.0}, "randomi
 ALWAYS_FAULTY = {**FIXED, "randomize": {"conicity": [0.05, 0.2], "actuator_failure_probability": 0.5,
                                         "actuator_stuck_probability": 0.5}}  # fmt: skip
 SHORT = {"speed": {"start_kmh": 300.0, "end_kmh": 306.0, "accel": 5.0}}  # 0.33 s episodes
+CRITERION = {"info": {"criterion": True}}
 
 
 def v1_task(config=FIXED, n=1):
@@ -185,7 +186,7 @@ def test_the_lqg_design_sees_the_noise_scale():
 
 # ---- per-step criterion fields ------------------------------------------------------------------
 def test_criterion_fields_agree_with_the_stability_protocol_and_the_wheel_forces():
-    env = BogieHuntingEnv({**FIXED, "large_perturbation_probability": 1.0}, variant="v1")  # starts on the flange
+    env = BogieHuntingEnv({**FIXED, **CRITERION, "large_perturbation_probability": 1.0}, variant="v1")  # on the flange
     _, info = env.reset(seed=2)
     task = env.unwrapped.task
     rng = np.random.default_rng(0)
@@ -234,8 +235,8 @@ def test_flange_contact_flags_the_wheel_on_the_flange():
 
 def test_vector_env_criterion_fields_match_the_single_envs():
     n, seed = 3, 5
-    vec = BogieHuntingVectorEnv(n, SHORT)
-    singles = [BogieHuntingEnv(SHORT) for _ in range(n)]
+    vec = BogieHuntingVectorEnv(n, {**SHORT, **CRITERION})
+    singles = [BogieHuntingEnv({**SHORT, **CRITERION}) for _ in range(n)]
     _, vinfo = vec.reset(seed=seed)
     infos = [e.reset(seed=seed + i)[1] for i, e in enumerate(singles)]
     for _ in range(10):
@@ -248,13 +249,14 @@ def test_vector_env_criterion_fields_match_the_single_envs():
         infos = [e.step(actions[i])[4] for i, e in enumerate(singles)]
 
 
-def test_criterion_fields_can_be_switched_off():
-    env = BogieHuntingEnv({"info": {"criterion": False}})
-    _, info = env.reset(seed=0)
-    assert not set(CRITERION_FIELDS) & set(info)
-    vec = BogieHuntingVectorEnv(2, {"info": {"criterion": False}})
-    _, vinfo = vec.reset(seed=0)
-    assert not set(CRITERION_FIELDS) & set(vinfo)
+def test_criterion_fields_are_off_by_default_and_on_when_asked():
+    for config, present in ((None, False), (CRITERION, True)):
+        _, info = BogieHuntingEnv(config).reset(seed=0)
+        _, vinfo = BogieHuntingVectorEnv(2, config).reset(seed=0)
+        assert (set(CRITERION_FIELDS) <= set(info)) == present and (set(CRITERION_FIELDS) <= set(vinfo)) == present
+        assert present or not set(CRITERION_FIELDS) & (set(info) | set(vinfo))
+    with pytest.raises(ConfigError, match="'info.criterion' = 1"):
+        make_config({"info": {"criterion": 1}})
     with pytest.raises(ConfigError, match="'info.criterion' = 1"):
         make_config({"info": {"criterion": 1}})
 
@@ -347,7 +349,7 @@ def test_the_docstring_states_each_versions_speed_range(variant):
 
 
 def test_route_info_keeps_its_fields_and_agrees_with_the_criterion_fields():
-    env = BogieHuntingEnv(variant="v1_route")
+    env = BogieHuntingEnv(CRITERION, variant="v1_route")
     _, info = env.reset(seed=1, options={"route": "s-curve"})
     rng = np.random.default_rng(1)
     for _ in range(30):

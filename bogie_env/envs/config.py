@@ -98,9 +98,10 @@ def default_config() -> dict[str, Any]:
         # route variant's termination: the wheel's Y/Q, averaged over y_over_q_window_m of track
         # (EN 14363's 2 m sliding mean), above y_over_q_limit ends the episode (null: never)
         "curving": {"y_over_q_limit": None, "y_over_q_window_m": 2.0},
-        # criterion: the per-step criterion fields in every info (task.CRITERION_FIELDS: displacement
-        # relative to the rail, flange contact, ΣY, Y/Q); false drops them for speed
-        "info": {"criterion": True},
+        # criterion: true adds the per-step criterion fields to every info (task.CRITERION_FIELDS:
+        # displacement relative to the rail, flange contact, ΣY, Y/Q); off by default, as they cost
+        # a front-end step measurably (benchmarks/bench_info.py)
+        "info": {"criterion": False},
         # reuse_options: the vector envs reset a finished row with the options of its last reset
         # (Gymnasium vector env: reset(options=...); SB3 VecEnv: set_options); false: no options
         "autoreset": {"reuse_options": False},

@@ -111,9 +111,11 @@ class BogieHuntingEnv(gym.Env):
     `actuator_force` (4,) in N / N m and `actuator_power` (4,) in W (mechanical power delivered
     by each channel, mean over the step; negative = dissipated), `blowup` (bool).
 
-    Per step, what a running-stability or safety criterion (EN 14363) is built from, at the end
-    of the step, from the simulator's state and wheel-rail contact (`task.CRITERION_FIELDS`;
-    config `info.criterion: false` drops them for speed):
+    With config `info: {"criterion": true}` (off by default: they cost a front-end step
+    measurably, `benchmarks/bench_info.py`), every info adds what a running-stability or safety
+    criterion (EN 14363) is built from, at the end of the step, from the simulator's state and
+    wheel-rail contact (`task.CRITERION_FIELDS`; `env.unwrapped.task.criterion_quantities()`
+    gives them at any time, whatever the flag):
 
     | key | shape | meaning |
     |---|---|---|
@@ -231,7 +233,8 @@ class BogieHuntingEnv(gym.Env):
       levels; per-episode conicity, suspension, creep, axle load, actuator gain and faults;
       converged integration. `Bogie/HuntingRoute-v1` (curves) is a variant of v1; the other v1
       ids are unchanged bit for bit (`tests/test_v1_golden.py`).
-    - v0 and v1 infos gain the per-step criterion fields and, at reset, `scenario`; reset options
+    - v0 and v1 infos gain, at reset, `scenario` and, with `info.criterion`, the per-step
+      criterion fields; reset options
       gain the fault value `"none"`; config gains `sensors.noise_scale`, `sensors.bias_scale`,
       `speed.supported_kmh`, `info.criterion` and `autoreset.reuse_options`. Trajectories are
       unchanged (`tests/test_v0_golden.py`, `tests/test_v1_golden.py`).

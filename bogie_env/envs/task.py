@@ -428,12 +428,13 @@ CRITERION_FIELDS: dict[str, str] = {
 }
 
 
-# columns of the criterion kernel's output: per wheelset i, displacement relative to the rail,
-# ΣY, then per wheel (left, right) the flange-contact flag (1/0) and Y/Q
-K_REL1, K_SUM_Y1 = 0, 2
-K_FLANGE1 = 4  # wheelset 1 left, right, wheelset 2 left, right
-K_Y_OVER_Q1 = 8  # wheelset 1 left, right, wheelset 2 left, right
-N_CRITERION = 12
+# columns of the criterion kernel's output: per wheelset the displacement relative to the rail
+# and ΣY; per wheel (wheelset 1 left, right, wheelset 2 left, right) Y/Q; the largest Y/Q; the
+# flags (1/0): per wheel flange contact, then per wheelset
+K_REL1, K_SUM_Y1, K_Y_OVER_Q1, K_Y_OVER_Q_MAX = 0, 2, 4, 8
+K_FLANGE_WHEEL1 = 9
+K_FLANGE1 = K_FLANGE_WHEEL1 + 4
+N_CRITERION = K_FLANGE1 + 2
 
 
 @njit(cache=True, inline="always")
@@ -445,16 +446,17 @@ def _flange_contact(y_rel, delta):
 
 
 @njit(cache=True)
-def _criterion_rows(rows, sim_rows, out):
+def _criterion_rows(rows, x, motion, coefficients, track_sample, out):
     """The criterion quantities of ``rows`` at the end of their last interval into ``out[j]``
     (N_CRITERION,) for row ``rows[j]`` (SI units). ΣY is ``dynamics._guiding_forces_row``, the
     function behind ``analysis.en14363.running_signals_rows`` (the stability protocol's ΣY); Y
     per wheel is ``analysis.curving.wheelset_details`` over Q = Wpa/2, as the route variant's
-    Y/Q. Not fastmath, like those."""
-    x, motion, coefficients, _, _, _, _, track_sample, _ = sim_rows
+    Y/Q. Not fastmath, like those. (The simulator's arrays one by one: a tuple argument costs
+    more to dispatch than the single env's whole info.)"""
     row = np.empty(len(DETAIL_NAMES))
     sum_y = np.empty(2)
     for j in range(rows.shape[0]):
+        y_over_q = -math.inf
         n = rows[j]
         p = coefficients[n]
         v = motion[n, M_SPEED]
@@ -467,10 +469,13 @@ def _criterion_rows(rows, sim_rows, out):
             wheelset_details(x[n], 1.0 / v, track_sample[n], p, i, row)
             out[j, K_REL1 + i] = y_rel
             out[j, K_SUM_Y1 + i] = sum_y[i]
-            out[j, K_FLANGE1 + 2 * i] = 1.0 if left else 0.0
-            out[j, K_FLANGE1 + 2 * i + 1] = 1.0 if right else 0.0
             out[j, K_Y_OVER_Q1 + 2 * i] = row[Y_L] * inv_q
             out[j, K_Y_OVER_Q1 + 2 * i + 1] = row[Y_R] * inv_q
+            y_over_q = max(y_over_q, out[j, K_Y_OVER_Q1 + 2 * i], out[j, K_Y_OVER_Q1 + 2 * i + 1])
+            out[j, K_FLANGE_WHEEL1 + 2 * i] = 1.0 if left else 0.0
+            out[j, K_FLANGE_WHEEL1 + 2 * i + 1] = 1.0 if right else 0.0
+            out[j, K_FLANGE1 + i] = 1.0 if (left or right) else 0.0
+        out[j, K_Y_OVER_Q_MAX] = y_over_q
 
 
 class HuntingTask:
@@ -480,8 +485,9 @@ class HuntingTask:
     :attr:`truncated`, :attr:`hunting`, :attr:`blowup`, :attr:`speed_kmh`,
     :attr:`onset_speed_kmh`, :attr:`lateral_rms_m`, :attr:`relative_lateral_m`,
     :attr:`actuator_force`, :attr:`actuator_power`, :attr:`actuator_limits`, :attr:`states`,
-    :attr:`flange_clearance`; and :meth:`reset_rows`, :meth:`step`, :meth:`set_states`,
-    :meth:`observe`.
+    :attr:`flange_clearance`; :meth:`criterion_quantities` (the per-step criterion fields of
+    the infos, :data:`CRITERION_FIELDS`), :meth:`scenario` and :meth:`scenario_summary` (what an
+    episode drew); and :meth:`reset_rows`, :meth:`step`, :meth:`set_states`, :meth:`observe`.
     """
 
     def __init__(self, num_envs: int, config: Mapping[str, Any] | str | None = None, **overrides: Any) -> None:
@@ -540,6 +546,8 @@ class HuntingTask:
         self.health = np.repeat(healthy()[None], n, axis=0)
         self.scenarios: list[scenarios.Scenario] = [scenarios.Scenario() for _ in range(n)]
         self._episode_draws: list[dict[str, Any]] = [{} for _ in range(n)]  # what reset_rows drew besides the scenario
+        self._criterion_on = bool(c["info"]["criterion"])
+        self._one_row, self._one_out = np.zeros(1, dtype=np.int64), np.empty((1, N_CRITERION))  # info_dict's buffers
         self.sensors_enabled = bool(c["sensors"]["enabled"])
         self.sensor_table = sensor_table(c["sensors"], c["dt"])
         self.sensor_filter = np.zeros((n, N_SENSED))
@@ -968,30 +976,30 @@ class HuntingTask:
         the simulator's state and contact (:func:`_criterion_rows`)."""
         rows = np.arange(self.num_envs) if rows is None else np.atleast_1d(np.asarray(rows, dtype=np.int64))
         out = np.empty((rows.size, N_CRITERION))
-        _criterion_rows(rows, self.sim.rows, out)
+        sim = self.sim
+        _criterion_rows(rows, sim.x, sim.motion, sim.coefficients, sim.track_sample, out)
         return self._criterion_columns(out)
 
     @staticmethod
     def _criterion_columns(out: np.ndarray) -> dict[str, np.ndarray]:
         k = out.shape[0]
-        wheels = out[:, K_FLANGE1 : K_FLANGE1 + 4].reshape(k, 2, 2) > 0.5
-        y_over_q = out[:, K_Y_OVER_Q1 : K_Y_OVER_Q1 + 4]
+        flags = out[:, K_FLANGE_WHEEL1:] > 0.5
         values = {
             "wheelset_lateral_rel_rail_m": out[:, K_REL1 : K_REL1 + 2],
-            "flange_contact": wheels[:, :, 0] | wheels[:, :, 1],
-            "wheel_flange_contact": wheels,
+            "flange_contact": flags[:, 4:6],
+            "wheel_flange_contact": flags[:, :4].reshape(k, 2, 2),
             "sum_y_n": out[:, K_SUM_Y1 : K_SUM_Y1 + 2],
-            "wheel_y_over_q": y_over_q.reshape(k, 2, 2),
-            "y_over_q": y_over_q.max(axis=1),
+            "wheel_y_over_q": out[:, K_Y_OVER_Q1 : K_Y_OVER_Q1 + 4].reshape(k, 2, 2),
+            "y_over_q": out[:, K_Y_OVER_Q_MAX],
         }
         assert tuple(values) == tuple(CRITERION_FIELDS)
         return values
 
     def _criterion_info(self, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """The criterion fields for the infos (none with config ``info.criterion`` false); on
+        """The criterion fields for the infos (only with config ``info.criterion``); on
         routes ``flange_contact`` and ``y_over_q`` stay the route variant's own (the same
         quantities, computed in the step)."""
-        if not self.config["info"]["criterion"]:
+        if not self._criterion_on:
             return {}
         values = self.criterion_quantities(rows)
         if self.on_routes:
@@ -1013,8 +1021,28 @@ class HuntingTask:
             "actuator_power": info[I_POWER : I_POWER + N_CHANNELS],
             "blowup": bool(flags[F_BLOWUP]),
             **(self._curving_info(info, flags) if self.on_routes else {}),
-            **{key: (value[0] if value.ndim > 1 else value.item()) for key, value in self._criterion_info(np.array([row])).items()},
+            **(self._criterion_row_info(row) if self._criterion_on else {}),
         }
+
+    def _criterion_row_info(self, row: int) -> dict[str, Any]:
+        """One row's criterion fields (:data:`CRITERION_FIELDS`; on routes without the route
+        variant's own ``flange_contact`` and ``y_over_q``): the single env's per-step path."""
+        sim, rows, out = self.sim, self._one_row, self._one_out
+        rows[0] = row
+        _criterion_rows(rows, sim.x, sim.motion, sim.coefficients, sim.track_sample, out)
+        o = out[0].copy()  # the arrays below are views of this copy
+        flags = o[K_FLANGE_WHEEL1:] > 0.5
+        values = {
+            "wheelset_lateral_rel_rail_m": o[K_REL1 : K_REL1 + 2],
+            "flange_contact": flags[4:6],
+            "wheel_flange_contact": flags[:4].reshape(2, 2),
+            "sum_y_n": o[K_SUM_Y1 : K_SUM_Y1 + 2],
+            "wheel_y_over_q": o[K_Y_OVER_Q1 : K_Y_OVER_Q1 + 4].reshape(2, 2),
+            "y_over_q": float(o[K_Y_OVER_Q_MAX]),
+        }
+        if self.on_routes:
+            del values["flange_contact"], values["y_over_q"]
+        return values
 
     @staticmethod
     def _curving_info(info: np.ndarray, flags: list) -> dict[str, Any]:

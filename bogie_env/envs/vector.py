@@ -43,9 +43,9 @@ class BogieHuntingVectorEnv(VectorEnv):
     (default: the configured ramp's length plus 10 %).
 
     Infos: the single env's fields as arrays over the envs (``BogieHuntingEnv``, "Info"), each
-    with its ``_key`` mask; the per-step criterion fields (``wheelset_lateral_rel_rail_m``,
-    ``flange_contact``, ``wheel_flange_contact``, ``sum_y_n``, ``wheel_y_over_q``, ``y_over_q``)
-    are computed for all envs in one compiled call. A ``reset`` and a ``step`` that restarts
+    with its ``_key`` mask; with config ``info.criterion`` the per-step criterion fields
+    (``wheelset_lateral_rel_rail_m``, ``flange_contact``, ``wheel_flange_contact``, ``sum_y_n``,
+    ``wheel_y_over_q``, ``y_over_q``) are computed for all envs in one compiled call. A ``reset`` and a ``step`` that restarts
     envs add ``scenario``: an object array holding each (re)started env's scenario summary
     (``HuntingTask.scenario_summary``), its ``_scenario`` mask True for those envs only.
 
