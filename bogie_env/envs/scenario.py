@@ -122,7 +122,8 @@ class Scenario:
     stuck_command: float = 0.0  # the stuck channel's held action, in [-1, 1]
 
     def as_dict(self) -> dict[str, Any]:
-        """A JSON-friendly summary (the info's ``scenario``)."""
+        """A JSON-friendly summary (``HuntingTask.scenario``; the reset info's ``scenario`` adds
+        the other draws, ``HuntingTask.scenario_summary``)."""
         return {
             "params": dict(self.factors),
             "conicity": self.conicity,
