@@ -342,12 +342,12 @@ class LQGController(LQRController):
     def sensor_errors(self) -> tuple[np.ndarray, np.ndarray]:
         """With the sensor model: each sensor's per-sample noise rms and bias standard
         deviation, in observation units (``bogie_env.envs.sensors``)."""
-        from bogie_env.envs.sensors import SENSOR_NAMES, noise_rms
+        from bogie_env.envs.sensors import SENSOR_NAMES, channel_bias, channel_noise_rms
 
         scales = T.sensor_scales(self.model.params.delta)[: len(T.SENSORS)]
-        specs = [self.config["sensors"][name] for name in SENSOR_NAMES[: len(T.SENSORS)]]
-        noise = np.array([noise_rms(s["noise_density"], s["bandwidth_hz"]) for s in specs]) / scales
-        bias = np.array([s["bias"] for s in specs]) / scales
+        sensors, names = self.config["sensors"], SENSOR_NAMES[: len(T.SENSORS)]
+        noise = np.array([channel_noise_rms(sensors, name) for name in names]) / scales
+        bias = np.array([channel_bias(sensors, name) for name in names]) / scales
         return noise, bias
 
     def measurement_matrix(self, speed: float) -> np.ndarray:

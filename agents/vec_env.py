@@ -25,10 +25,15 @@ from bogie_env.envs.vector import _seeds
 class BogieHuntingSB3VecEnv(VecEnv):
     """N bogies in one compiled call; Stable-Baselines3's ``VecEnv`` with same-step reset.
 
-    Infos: each finished env's dict holds ``terminal_observation``, ``TimeLimit.truncated``,
-    ``speed_kmh``, ``onset_speed_kmh`` and ``hunting``; the others are empty (building 4096
-    full dicts per step would dominate the step time). Wrap it in ``VecMonitor`` for episode
-    statistics.
+    Infos: each finished env's dict holds ``terminal_observation``, ``TimeLimit.truncated`` and
+    the single env's step info (``BogieHuntingEnv``, "Info"); the others are empty (building 4096
+    full dicts per step would dominate the step time). ``reset_infos[i]["scenario"]`` is env
+    i's episode scenario (``HuntingTask.scenario_summary``), set at each reset and autoreset.
+    Wrap it in ``VecMonitor`` for episode statistics.
+
+    Reset options: ``set_options(...)`` before ``reset()``; the first env's options apply to
+    every env. A finished env restarts with no options, unless config
+    ``autoreset.reuse_options`` is true: then with the options of the last ``reset()``.
     """
 
     def __init__(
@@ -56,6 +61,8 @@ class BogieHuntingSB3VecEnv(VecEnv):
             self._seeded = True
         options = self._options[0] if self._options and self._options[0] else None
         self.task.reset_rows(rows, options)
+        self._last_options = options  # every row's; autoreset reuses them with config autoreset.reuse_options
+        self.reset_infos = [{"scenario": self.task.scenario_summary(i)} for i in range(self.num_envs)]
         self._episode_steps[:] = 0
         self._reset_seeds()
         self._reset_options()
@@ -81,7 +88,10 @@ class BogieHuntingSB3VecEnv(VecEnv):
             info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
             infos[i] = info
         if done_rows.size:
-            self.task.reset_rows(done_rows)
+            reuse = self.task.config["autoreset"]["reuse_options"]
+            self.task.reset_rows(done_rows, getattr(self, "_last_options", None) if reuse else None)
+            for i in done_rows:
+                self.reset_infos[i] = {"scenario": self.task.scenario_summary(int(i))}
             self._episode_steps[done_rows] = 0
             obs[done_rows] = self.task.obs[done_rows]
         return obs, rewards, dones, infos

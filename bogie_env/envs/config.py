@@ -56,6 +56,12 @@ def default_config() -> dict[str, Any]:
             "start_kmh_range": None,
             "end_kmh_range": None,
             "accel_range": None,
+            # null, or [low, high] km/h added to the supported speed range: the range the
+            # integration step is chosen for and reset options may use is the union of this and
+            # the ramp's (start_kmh .. end_kmh and their ranges); e.g. [40, 600] for low-speed
+            # studies on v1 (v1's step is then chosen for 40-600 km/h: other substeps, so other
+            # trajectories than the registered id's)
+            "supported_kmh": None,
         },
         "initial_perturbation": 1e-3,  # m, std of the random initial lateral offsets
         # with this probability an episode starts with large offsets instead (uniform in
@@ -68,8 +74,12 @@ def default_config() -> dict[str, Any]:
         # and named ranges/probabilities, e.g. {"conicity": [0.025, 0.3]}
         "randomize": {},
         "actuators": copy.deepcopy(_ACTUATOR_DEFAULTS),
+        # noise: white Gaussian noise of this standard deviation in observation units (the scaled
+        # values, ~1 at full scale) added to every entry, actuator forces included, after the
+        # sensor model; a generic robustness knob, not the sensor model (that is `sensors`)
         "observation": {"type": "sensors", "noise": 0.0, "include_actuators": True},
-        # the sensor model of the "sensors" observation (envs/sensors.py); off in v0
+        # the sensor model of the "sensors" observation (envs/sensors.py); off in v0. noise_scale and
+        # bias_scale multiply every channel's noise_density and bias (0: no noise / no bias)
         "sensors": default_sensor_config(),
         "integration": {"step_criterion": "stability", "tolerance": 0.1, "n_sub": None},
         # wear_weight, flange_weight: the curving penalties of the route variant (0: off); the wear
@@ -88,6 +98,13 @@ def default_config() -> dict[str, Any]:
         # route variant's termination: the wheel's Y/Q, averaged over y_over_q_window_m of track
         # (EN 14363's 2 m sliding mean), above y_over_q_limit ends the episode (null: never)
         "curving": {"y_over_q_limit": None, "y_over_q_window_m": 2.0},
+        # criterion: true adds the per-step criterion fields to every info (task.CRITERION_FIELDS:
+        # displacement relative to the rail, flange contact, ΣY, Y/Q); off by default, as they cost
+        # a front-end step measurably (benchmarks/bench_info.py)
+        "info": {"criterion": False},
+        # reuse_options: the vector envs reset a finished row with the options of its last reset
+        # (Gymnasium vector env: reset(options=...); SB3 VecEnv: set_options); false: no options
+        "autoreset": {"reuse_options": False},
         # threads for batches of >= simulator.PARALLEL_MIN_ROWS rows (None: BOGIE_NUM_THREADS or
         # the usable cores); results do not depend on it
         "num_threads": None,
@@ -156,6 +173,7 @@ def validate(config: dict) -> dict:
     for key in ("start_kmh_range", "end_kmh_range"):
         sp[key] = _range(f"speed.{key}", sp[key], MIN_SPEED_KMH, MAX_SPEED_KMH)
     sp["accel_range"] = _range("speed.accel_range", sp["accel_range"], 0.0, MAX_ACCEL)
+    sp["supported_kmh"] = _range("speed.supported_kmh", sp["supported_kmh"], MIN_SPEED_KMH, MAX_SPEED_KMH)
     if sp["end_kmh"] < sp["start_kmh"]:
         raise ConfigError(f"config 'speed.end_kmh' = {sp['end_kmh']:g} must not be below 'speed.start_kmh' = {sp['start_kmh']:g}")
     c["initial_perturbation"] = _number("initial_perturbation", c["initial_perturbation"], 0.0, 0.02)
@@ -213,6 +231,8 @@ def validate(config: dict) -> dict:
     se = c["sensors"]
     if not isinstance(se["enabled"], bool):
         raise ConfigError(f"config 'sensors.enabled' = {se['enabled']!r} must be true or false")
+    se["noise_scale"] = _number("sensors.noise_scale", se["noise_scale"], 0.0, 100.0)
+    se["bias_scale"] = _number("sensors.bias_scale", se["bias_scale"], 0.0, 100.0)
     for name in SENSOR_NAMES:
         if not isinstance(se[name], Mapping):
             raise ConfigError(f"config 'sensors.{name}' must be a mapping with keys {', '.join(SENSOR_SETTINGS)}")
@@ -260,6 +280,9 @@ def validate(config: dict) -> dict:
     if (rw["wear_weight"] > 0 or rw["flange_weight"] > 0 or cu["y_over_q_limit"] is not None) and c["route"]["names"] is None:
         raise ConfigError("config 'reward.wear_weight', 'reward.flange_weight' and 'curving.y_over_q_limit' act on routes: "
                           "set 'route.names' (e.g. Bogie/HuntingRoute-v1) or leave them at 0 / null")  # fmt: skip
+    for where, value in (("info.criterion", c["info"]["criterion"]), ("autoreset.reuse_options", c["autoreset"]["reuse_options"])):
+        if not isinstance(value, bool):
+            raise ConfigError(f"config {where!r} = {value!r} must be true or false")
     t = c["num_threads"]
     if t is not None and (isinstance(t, bool) or not isinstance(t, int) or t < 1):
         raise ConfigError(f"config 'num_threads' = {t!r} must be null or an integer >= 1")

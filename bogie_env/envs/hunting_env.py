@@ -56,8 +56,11 @@ class BogieHuntingEnv(gym.Env):
     | 7… | each active actuator's force / its `max_force` (if `include_actuators`) | 1 |
 
     With `observation.type = "state"`: the 20 states of the model (`bogie_env.STATE_NAMES`) scaled
-    to O(1), then the speed and actuator forces as above. `observation.noise` adds Gaussian noise
-    of that standard deviation (in scaled units) to every entry.
+    to O(1), then the speed and actuator forces as above. `observation.noise` (default 0) adds
+    white Gaussian noise of that standard deviation *in observation units* to every entry, the
+    actuator forces included: a generic robustness knob on top of everything else. It is not
+    the sensor model of v1 (`sensors`, with physical noise densities and biases per channel and
+    the one factor `sensors.noise_scale`; see "Bogie/Hunting-v1").
 
     ## Rewards
 
@@ -89,12 +92,53 @@ class BogieHuntingEnv(gym.Env):
       The registered ids add no other limit, so it follows the config;
       `gym.make(..., max_episode_steps=N)` adds a `TimeLimit` of N steps.
 
+    ## Speed range
+
+    A version supports the speeds of its ramp: v0 300-600 km/h, v1 100-600 km/h (the route
+    variant: its routes' ranges, 160-350 km/h). The RK4 step is chosen for that range, and
+    `reset(options=...)` speeds outside it are refused. `speed.supported_kmh: [low, high]`
+    (within 30-850 km/h) widens it without moving the default ramp, e.g.
+    `config={"speed": {"supported_kmh": [40, 600]}}` and then
+    `reset(options={"start_kmh": 40, "end_kmh": 40, "accel": 0})`. The step is then chosen for the
+    wider range, so it may take other substeps (`env.unwrapped.task.n_sub`) and give other
+    trajectories than the registered id. Changing `speed.start_kmh` or `end_kmh` moves the
+    default ramp and widens the range with it.
+
     ## Info
 
     `speed_kmh`, `hunting` (bool), `onset_speed_kmh` (None until hunting; NaN in the vector
     envs' arrays), `lateral_rms_m` (2,),
     `actuator_force` (4,) in N / N m and `actuator_power` (4,) in W (mechanical power delivered
     by each channel, mean over the step; negative = dissipated), `blowup` (bool).
+
+    With config `info: {"criterion": true}` (off by default: they cost a front-end step
+    measurably, `benchmarks/bench_info.py`), every info adds what a running-stability or safety
+    criterion (EN 14363) is built from, at the end of the step, from the simulator's state and
+    wheel-rail contact (`task.CRITERION_FIELDS`; `env.unwrapped.task.criterion_quantities()`
+    gives them at any time, whatever the flag):
+
+    | key | shape | meaning |
+    |---|---|---|
+    | `wheelset_lateral_rel_rail_m` | (2,) | each wheelset's lateral displacement relative to the rail, m, + left |
+    | `flange_contact` | (2,) bool | wheelset in flange contact: abs(displacement relative to the rail) >= flange clearance (9 mm) |
+    | `wheel_flange_contact` | (2, 2) bool | [wheelset, (left, right) wheel]: the left wheel at +clearance, the right at -clearance |
+    | `sum_y_n` | (2,) | EN 14363's sum of guiding forces ΣY per wheelset, N: the rails' lateral force on the wheelset, + left |
+    | `wheel_y_over_q` | (2, 2) | [wheelset, (left, right) wheel] Y/Q: the wheel's lateral force on its rail (+ outwards) over Q = axle load / 2 |
+    | `y_over_q` | () | the largest of the four |
+
+    Flange contact is the stability protocol's test and ΣY its function
+    (`bogie_env.analysis.en14363.running_signals_rows`), so a criterion built on these fields
+    reads what `bogie evaluate --parts stability` reads. The detector's `lateral_rms_m` is not a
+    substitute, nor is the frame-acceleration observation (noisy and biased in v1).
+
+    At reset the info adds `scenario` (`env.unwrapped.task.scenario_summary(0)`): every value
+    the episode drew or was given, JSON-friendly: `params` (factors), `conicity` (None: the
+    bogie's own), `primary_longitudinal_stiffness`, `primary_lateral_stiffness`, `creep_factor`,
+    `damper_factor`, `axle_load`, `actuator_gain` (per channel), `failed_actuator`,
+    `stuck_actuator` (None: no such fault), `stuck_command`, `start_kmh`, `end_kmh`,
+    `accel_m_per_s2`, `track_position_m`, `route`, `route_copy`, `initial_offset_m`,
+    `initial_yaw_rad`, `large_perturbation` and `sensor_bias` (SI, per channel; None without the
+    sensor model).
 
     ## Arguments
 
@@ -110,11 +154,16 @@ class BogieHuntingEnv(gym.Env):
     spectrum shape), `randomize` (per-episode parameter scale ranges, e.g.
     `{"Csy": [0.5, 1.0]}`), `actuators`, `observation`, `reward`, `hunting`.
     `reset(options=...)` accepts `start_kmh`, `end_kmh`, `accel` (0-10 m/s²: the speed only
-    ramps up or stays constant) and `params` (a mapping of scale factors); the step limit is the
-    config's, so a ramp made longer by reset options is truncated there. Every bad value is a
+    ramps up or stays constant; speeds within the supported range, see "Speed range"), `params`
+    (a mapping of scale factors) and the scenario entries (see "Bogie/Hunting-v1"); the step
+    limit is the config's, so a ramp made longer by reset options is truncated there. Every bad value is a
     `ConfigError` naming the key; `randomize` ranges are checked when the env is made.
     `step()` before the first `reset()` raises `gymnasium.error.ResetNeeded`. `render_fps` is
     `1 / dt` (100 with the default 0.01 s), so recorded videos play in real time.
+    The vector envs restart a finished episode with no reset options, unless
+    `autoreset.reuse_options` is true: then with the options of the row's last
+    `reset(options=...)` (Gymnasium vector env) or `set_options` (SB3 VecEnv), so a fixed-speed,
+    fault-free study stays so across episodes.
     `variant` names a preset of `bogie_env.envs.config.VARIANTS` that `config` merges into; the
     registered ids set it: `Bogie/HuntingPassive-v0` (`passive`), `Bogie/HuntingSemiActive-v0`
     (`semi_active`), `Bogie/HuntingSlowRamp-v0` (`slow_ramp`); `Bogie/Hunting-v0` and its
@@ -126,13 +175,17 @@ class BogieHuntingEnv(gym.Env):
     `Bogie/HuntingSlowRamp-v1` at 0.1 m/s²) keeps the spaces, reward, termination and info of
     v0 and changes the world (sources in `docs/environment.md`):
 
-    - Speed: 100 -> 600 km/h at 1.5 m/s² (worn wheels hunt far below 300 km/h).
+    - Speed: 100-600 km/h at 1.5 m/s² (worn wheels hunt far below 300 km/h); lower speeds
+      need `speed.supported_kmh` (see "Speed range").
     - Sensors (`config["sensors"]`, `bogie_env/envs/sensors.py`): every sensor observation
       (indices 0-6; the actuator forces stay exact) passes a first-order anti-alias filter
       (40 Hz) and gets a per-episode bias and white noise: frame lateral accelerometer
       80 µg/√Hz, bias 7.5 mg; yaw-rate gyro 0.008 °/s/√Hz, bias 0.2 °/s; wheelset-to-frame
       LVDTs 1 µm/√Hz, bias 62.5 µm (lateral) and 17 µrad (yaw); speed 0.1 (km/h)/√Hz, bias 2 km/h.
-      Per-sample noise rms = density x √(π/2 x bandwidth). `observation.noise` stays 0.
+      Per-sample noise rms = density x √(π/2 x bandwidth). One factor scales every channel:
+      `sensors.noise_scale` on the noise densities and `sensors.bias_scale` on the biases (default
+      1; 0 switches the noise or the bias off, 2 doubles it), the same as editing each
+      `sensors.<channel>.noise_density` / `.bias`. `observation.noise` (see above) stays 0.
     - Actuators: `delay_steps` = 1 (10 ms loop delay) and `rate_limit` 200 kN/s (lateral),
       400 kN m/s (yaw channels), on top of the 10 Hz lag and the saturation of v0.
     - Track: alignment at the EN 13848-5 `alert` level (`track.level`; also `intervention`,
@@ -145,7 +198,10 @@ class BogieHuntingEnv(gym.Env):
       gives zero force) and `actuator_stuck_probability` 0.05 (one channel holds a random command).
       `reset(options=...)` sets any of them: e.g. `{"conicity": 0.2, "failed_actuator": "frame_yaw"}`,
       `{"stuck_actuator": "frame_lateral", "stuck_command": 0.4}`, `{"actuator_gain": {"frame_yaw": 1.25}}`.
-      `env.unwrapped.task.scenario(0)` returns the episode's scenario.
+      A fault option given as None means "not given": the draw stands. `"none"` switches that
+      fault off for the episode: `{"failed_actuator": "none", "stuck_actuator": "none"}`
+      (`bogie_env.envs.scenario.NO_FAULTS`) is a fault-free episode whatever the probabilities;
+      the other draws stay as they were. The reset info's `scenario` states what was drawn.
     - Integration: the RK4 substep meets an accuracy criterion (`integration.step_criterion =
       "accuracy"`: decay rate and frequency of every lightly damped mode within 10 %, for every
       bogie the ranges can draw), not stability alone: 10 substeps of 1 ms instead of 2 of 5 ms.
@@ -166,7 +222,9 @@ class BogieHuntingEnv(gym.Env):
     wheelsets in flange contact) to v1's terms (weights 0.3, 0.1, 0.1, 0.2, 0.2; reference 65 N).
     Termination also when the largest wheel Y/Q over a 2 m sliding mean exceeds 0.8
     (`curving.y_over_q_limit`). Info adds `wear_number_n` (2,), `flange_contact` (2,),
-    `y_over_q`, `guiding_force_n` (2,), `curvature_1pm`, `cant_deficiency_m`, `y_over_q_exceeded`.
+    `y_over_q`, `guiding_force_n` (2,), `curvature_1pm`, `cant_deficiency_m`, `y_over_q_exceeded`
+    (`flange_contact` and `y_over_q` are the criterion fields of "Info", computed in the step;
+    `guiding_force_n` is ΣY as the wheelset's force on the track, i.e. `-sum_y_n`).
 
     ## Version History
 
@@ -175,6 +233,11 @@ class BogieHuntingEnv(gym.Env):
       levels; per-episode conicity, suspension, creep, axle load, actuator gain and faults;
       converged integration. `Bogie/HuntingRoute-v1` (curves) is a variant of v1; the other v1
       ids are unchanged bit for bit (`tests/test_v1_golden.py`).
+    - v0 and v1 infos gain, at reset, `scenario` and, with `info.criterion`, the per-step
+      criterion fields; reset options
+      gain the fault value `"none"`; config gains `sensors.noise_scale`, `sensors.bias_scale`,
+      `speed.supported_kmh`, `info.criterion` and `autoreset.reuse_options`. Trajectories are
+      unchanged (`tests/test_v0_golden.py`, `tests/test_v1_golden.py`).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # 1 / dt; set per instance
@@ -217,7 +280,7 @@ class BogieHuntingEnv(gym.Env):
         self._needs_reset = False
         if self.render_mode == "human":
             self.render()
-        return self.task.obs[0].copy(), self.task.info_dict(0)
+        return self.task.obs[0].copy(), {**self.task.info_dict(0), "scenario": self.task.scenario_summary(0)}
 
     def step(self, action):
         if self._needs_reset:

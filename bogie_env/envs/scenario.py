@@ -10,7 +10,9 @@ The env config's ``randomize`` section maps names to what is drawn at each reset
 Draws happen in the order of the section, one uniform per entry (one per channel for
 ``actuator_gain``; three for a fault: whether, which channel, the held command), whether or
 not a reset option then overrides the value: pinning one quantity never shifts the others'
-random stream. ``reset(options=...)`` sets any of them directly (:data:`OPTION_NAMES`).
+random stream. ``reset(options=...)`` sets any of them directly (:data:`OPTION_NAMES`);
+``failed_actuator`` / ``stuck_actuator`` = ``"none"`` (:data:`NO_FAULT`) switch that fault off
+for the episode, and :data:`NO_FAULTS` switches both off.
 """
 
 from __future__ import annotations
@@ -55,6 +57,12 @@ PROBABILITIES: dict[str, str] = {
 #: the model's) to worn ones (EN 15302; the v1 range is 0.025-0.3).
 CONICITY_GRID: tuple[float, ...] = (0.025, 0.05, 0.1, 0.2, 0.3)
 FAULT_OPTIONS = ("failed_actuator", "stuck_actuator", "stuck_command")
+#: The value of the reset options ``failed_actuator`` and ``stuck_actuator`` that means "no such
+#: fault this episode", whatever the config's probabilities drew (None means "not given": the
+#: draw stands).
+NO_FAULT = "none"
+#: Reset options of a fault-free episode: ``reset(options={**NO_FAULTS, ...})``.
+NO_FAULTS: dict[str, str] = {"failed_actuator": NO_FAULT, "stuck_actuator": NO_FAULT}
 #: reset(options=...) keys this module reads (besides v0's start_kmh, end_kmh, accel, params).
 OPTION_NAMES: tuple[str, ...] = tuple(RANGES) + FAULT_OPTIONS
 
@@ -114,7 +122,8 @@ class Scenario:
     stuck_command: float = 0.0  # the stuck channel's held action, in [-1, 1]
 
     def as_dict(self) -> dict[str, Any]:
-        """A JSON-friendly summary (the info's ``scenario``)."""
+        """A JSON-friendly summary (``HuntingTask.scenario``; the reset info's ``scenario`` adds
+        the other draws, ``HuntingTask.scenario_summary``)."""
         return {
             "params": dict(self.factors),
             "conicity": self.conicity,
@@ -192,17 +201,27 @@ def _apply_options(s: Scenario, options: Mapping[str, Any], active: list[str]) -
         else:
             setattr(s, name, _number(where, value, r.low, r.high))
     failed, stuck = options.get("failed_actuator"), options.get("stuck_actuator")
-    if failed is not None and stuck is not None:
-        raise ConfigError("reset options 'failed_actuator' and 'stuck_actuator': give at most one (one faulty actuator)")
+    if _is_channel(failed) and _is_channel(stuck):
+        raise ConfigError(f"reset options 'failed_actuator' = {failed!r} and 'stuck_actuator' = {stuck!r}: give at most one "
+                          f"channel (one faulty actuator per episode); {NO_FAULT!r} switches a fault off")  # fmt: skip
     for key, value in (("failed_actuator", failed), ("stuck_actuator", stuck)):
-        if value is None:
+        if value is None:  # not given: the draw stands
             continue
-        if value not in active:
-            raise ConfigError(f"reset option {key!r} = {value!r} is not an active channel; active: {', '.join(active) or 'none'}")
+        if isinstance(value, str) and value == NO_FAULT:  # no such fault this episode
+            setattr(s, key, None)
+            continue
+        if not isinstance(value, str) or value not in active:
+            raise ConfigError(f"reset option {key!r} = {value!r} is not an active channel; allowed: {NO_FAULT!r} (no such "
+                              f"fault) or an active channel ({', '.join(active) or 'none active'})")  # fmt: skip
         s.failed_actuator = value if key == "failed_actuator" else None
         s.stuck_actuator = value if key == "stuck_actuator" else None
     if "stuck_command" in options:
         s.stuck_command = _number("reset option 'stuck_command'", options["stuck_command"], -1.0, 1.0)
+
+
+def _is_channel(value: Any) -> bool:
+    """A fault option that names a channel (not None, not :data:`NO_FAULT`)."""
+    return value is not None and not (isinstance(value, str) and value == NO_FAULT)
 
 
 def scenario_model(base: BogieParams, s: Scenario, nominal: BogieModel) -> BogieModel:

@@ -10,11 +10,15 @@ sources. Each channel, sampled at the control rate (``dt``), is
   a signal held over the sample (``y += (1 - exp(-2 pi f_c dt)) (x - y)``); it starts settled
   on the first sample of an episode. It sees the signal only at the samples, so it models
   the filter's phase lag, not its removal of content above the Nyquist frequency.
-- ``bias``: drawn once per episode, normal with standard deviation ``bias``.
+- ``bias``: drawn once per episode, normal with standard deviation ``bias * bias_scale``.
 - ``noise``: white, normal, per sample, with standard deviation
-  ``noise_density * sqrt(pi/2 * bandwidth_hz)``: the datasheet's noise density over the
+  ``noise_density * noise_scale * sqrt(pi/2 * bandwidth_hz)``: the datasheet's noise density over the
   equivalent noise bandwidth of the first-order filter (pi/2 times its corner). Sampling keeps
   the variance, so this is the rms of the sampled, filtered sensor noise.
+
+``noise_scale`` and ``bias_scale`` (config ``sensors``, default 1) scale every channel at once:
+0 switches the noise (or the bias) off, 2 doubles it. They are not ``observation.noise``, which
+adds noise in observation units to every entry after this model.
 
 Values are in SI units (m/s^2, rad/s, m, rad, m/s); the observation divides them by the
 channel's scale (``task.py``). Noise comes from a small per-row generator (SplitMix64 and
@@ -110,7 +114,7 @@ S_FILTER_WEIGHT, S_NOISE_RMS = range(2)
 
 def default_sensor_config() -> dict[str, Any]:
     """The env config's ``sensors`` section: off (v0), and each channel's figures."""
-    out: dict[str, Any] = {"enabled": False}
+    out: dict[str, Any] = {"enabled": False, "noise_scale": 1.0, "bias_scale": 1.0}
     for s in SENSOR_MODELS:
         out[s.name] = s.defaults()
     return out
@@ -126,19 +130,31 @@ def filter_weight(bandwidth_hz: float, dt: float) -> float:
     return 1.0 - math.exp(-2 * math.pi * bandwidth_hz * dt)
 
 
+def channel_noise_rms(sensors: dict[str, Any], name: str) -> float:
+    """Per-sample noise rms of channel ``name`` under the config's ``sensors`` section (SI): its
+    noise density times ``noise_scale``, over its filter's noise bandwidth."""
+    spec = sensors[name]
+    return noise_rms(spec["noise_density"] * sensors.get("noise_scale", 1.0), spec["bandwidth_hz"])
+
+
+def channel_bias(sensors: dict[str, Any], name: str) -> float:
+    """Standard deviation of channel ``name``'s per-episode bias (SI): its ``bias`` times
+    ``bias_scale``."""
+    return sensors[name]["bias"] * sensors.get("bias_scale", 1.0)
+
+
 def sensor_table(sensors: dict[str, Any], dt: float) -> np.ndarray:
     """(N_SENSED, 2) compiled settings from the config's ``sensors`` section."""
     table = np.zeros((N_SENSED, 2))
     for j, name in enumerate(SENSOR_NAMES):
-        spec = sensors[name]
-        table[j, S_FILTER_WEIGHT] = filter_weight(spec["bandwidth_hz"], dt)
-        table[j, S_NOISE_RMS] = noise_rms(spec["noise_density"], spec["bandwidth_hz"])
+        table[j, S_FILTER_WEIGHT] = filter_weight(sensors[name]["bandwidth_hz"], dt)
+        table[j, S_NOISE_RMS] = channel_noise_rms(sensors, name)
     return table
 
 
 def draw_biases(sensors: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
-    """(N_SENSED,) one episode's biases, SI units."""
-    return np.array([rng.normal(0.0, sensors[name]["bias"]) for name in SENSOR_NAMES])
+    """(N_SENSED,) one episode's biases, SI units (standard deviations :func:`channel_bias`)."""
+    return np.array([rng.normal(0.0, channel_bias(sensors, name)) for name in SENSOR_NAMES])
 
 
 # ---- compiled: per-row generator, filter, noise ----------------------------------------------

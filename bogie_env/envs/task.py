@@ -44,7 +44,7 @@ from ..actuators import (
     healthy_command,
     saturation,
 )
-from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, rhs_row_call, state_index
+from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, _guiding_forces_row, rhs_row_call, state_index
 from ..integrate import FASTMATH, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, stable_substep
 from ..params import BogieParams, ConfigError
 from ..simulator import (
@@ -415,6 +415,69 @@ def _observe_rows(rows, sim_rows, channels, obs, cfg, state_scales):
         _observe(obs[n], x[n], motion[n, M_SPEED], coefficients[n], track_sample[n], u_end, channels, cfg, state_scales, scratch)
 
 
+# ---- per-step quantities of a stability or safety criterion (info; on demand) ---------------
+#: The criterion fields of every env's info (``HuntingTask.criterion_quantities``), SI units:
+#: shape per env, and what each is.
+CRITERION_FIELDS: dict[str, str] = {
+    "wheelset_lateral_rel_rail_m": "(2,) each wheelset's lateral displacement relative to the rail (m, + left)",
+    "flange_contact": "(2,) each wheelset in flange contact: |displacement relative to the rail| >= flange clearance",
+    "wheel_flange_contact": "(2, 2) [wheelset, (left, right) wheel]: left when the displacement >= +clearance, right when <= -clearance",
+    "sum_y_n": "(2,) EN 14363's sum of guiding forces ΣY per wheelset: the rails' lateral force on the wheelset (N, + left)",
+    "wheel_y_over_q": "(2, 2) [wheelset, (left, right) wheel] Y/Q: the wheel's lateral force on its rail (+ outwards) over Wpa/2",
+    "y_over_q": "() the largest of the four wheels' Y/Q",
+}
+
+
+# columns of the criterion kernel's output: per wheelset the displacement relative to the rail
+# and ΣY; per wheel (wheelset 1 left, right, wheelset 2 left, right) Y/Q; the largest Y/Q; the
+# flags (1/0): per wheel flange contact, then per wheelset
+K_REL1, K_SUM_Y1, K_Y_OVER_Q1, K_Y_OVER_Q_MAX = 0, 2, 4, 8
+K_FLANGE_WHEEL1 = 9
+K_FLANGE1 = K_FLANGE_WHEEL1 + 4
+N_CRITERION = K_FLANGE1 + 2
+
+
+@njit(cache=True, inline="always")
+def _flange_contact(y_rel, delta):
+    """(left, right) flange contact of a wheelset displaced ``y_rel`` from the rail: |y_rel| >=
+    the flange clearance ``delta`` (the stability protocol's test), on the left wheel when
+    displaced left (the side of the model's flange force, ``analysis.curving.wheelset_details``)."""
+    return y_rel >= delta, y_rel <= -delta
+
+
+@njit(cache=True)
+def _criterion_rows(rows, x, motion, coefficients, track_sample, out):
+    """The criterion quantities of ``rows`` at the end of their last interval into ``out[j]``
+    (N_CRITERION,) for row ``rows[j]`` (SI units). ΣY is ``dynamics._guiding_forces_row``, the
+    function behind ``analysis.en14363.running_signals_rows`` (the stability protocol's ΣY); Y
+    per wheel is ``analysis.curving.wheelset_details`` over Q = Wpa/2, as the route variant's
+    Y/Q. Not fastmath, like those. (The simulator's arrays one by one: a tuple argument costs
+    more to dispatch than the single env's whole info.)"""
+    row = np.empty(len(DETAIL_NAMES))
+    sum_y = np.empty(2)
+    for j in range(rows.shape[0]):
+        y_over_q = -math.inf
+        n = rows[j]
+        p = coefficients[n]
+        v = motion[n, M_SPEED]
+        inv_q = 1.0 / (0.5 * p[P_WPA])
+        _guiding_forces_row(x[n], v, track_sample[n], p, sum_y)
+        y_rel1, y_rel2 = _relative_lateral(x[n], track_sample[n])
+        for i in range(2):
+            y_rel = y_rel1 if i == 0 else y_rel2
+            left, right = _flange_contact(y_rel, p[P_DELTA])
+            wheelset_details(x[n], 1.0 / v, track_sample[n], p, i, row)
+            out[j, K_REL1 + i] = y_rel
+            out[j, K_SUM_Y1 + i] = sum_y[i]
+            out[j, K_Y_OVER_Q1 + 2 * i] = row[Y_L] * inv_q
+            out[j, K_Y_OVER_Q1 + 2 * i + 1] = row[Y_R] * inv_q
+            y_over_q = max(y_over_q, out[j, K_Y_OVER_Q1 + 2 * i], out[j, K_Y_OVER_Q1 + 2 * i + 1])
+            out[j, K_FLANGE_WHEEL1 + 2 * i] = 1.0 if left else 0.0
+            out[j, K_FLANGE_WHEEL1 + 2 * i + 1] = 1.0 if right else 0.0
+            out[j, K_FLANGE1 + i] = 1.0 if (left or right) else 0.0
+        out[j, K_Y_OVER_Q_MAX] = y_over_q
+
+
 class HuntingTask:
     """N hunting-control episodes over one :class:`BatchSimulator`.
 
@@ -422,8 +485,9 @@ class HuntingTask:
     :attr:`truncated`, :attr:`hunting`, :attr:`blowup`, :attr:`speed_kmh`,
     :attr:`onset_speed_kmh`, :attr:`lateral_rms_m`, :attr:`relative_lateral_m`,
     :attr:`actuator_force`, :attr:`actuator_power`, :attr:`actuator_limits`, :attr:`states`,
-    :attr:`flange_clearance`; and :meth:`reset_rows`, :meth:`step`, :meth:`set_states`,
-    :meth:`observe`.
+    :attr:`flange_clearance`; :meth:`criterion_quantities` (the per-step criterion fields of
+    the infos, :data:`CRITERION_FIELDS`), :meth:`scenario` and :meth:`scenario_summary` (what an
+    episode drew); and :meth:`reset_rows`, :meth:`step`, :meth:`set_states`, :meth:`observe`.
     """
 
     def __init__(self, num_envs: int, config: Mapping[str, Any] | str | None = None, **overrides: Any) -> None:
@@ -481,6 +545,9 @@ class HuntingTask:
         # actuator health per row (gain, held command), sensor model state per row
         self.health = np.repeat(healthy()[None], n, axis=0)
         self.scenarios: list[scenarios.Scenario] = [scenarios.Scenario() for _ in range(n)]
+        self._episode_draws: list[dict[str, Any]] = [{} for _ in range(n)]  # what reset_rows drew besides the scenario
+        self._criterion_on = bool(c["info"]["criterion"])
+        self._one_row, self._one_out = np.zeros(1, dtype=np.int64), np.empty((1, N_CRITERION))  # info_dict's buffers
         self.sensors_enabled = bool(c["sensors"]["enabled"])
         self.sensor_table = sensor_table(c["sensors"], c["dt"])
         self.sensor_filter = np.zeros((n, N_SENSED))
@@ -496,12 +563,16 @@ class HuntingTask:
 
     def speed_limits(self) -> tuple[float, float]:
         """Lowest and highest speed (m/s) any episode can visit under this config."""
+        sp = self.config["speed"]
         if self.route_layout is not None:
             lo, hi = self.route_layout.speed_limits_kmh()
-            return lo / KMH, hi / KMH
-        sp = self.config["speed"]
-        lows = [sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else [])
-        highs = [sp["end_kmh"]] + ([sp["end_kmh_range"][1]] if sp["end_kmh_range"] else [])
+            lows, highs = [lo], [hi]
+        else:
+            lows = [sp["start_kmh"]] + ([sp["start_kmh_range"][0]] if sp["start_kmh_range"] else [])
+            highs = [sp["end_kmh"]] + ([sp["end_kmh_range"][1]] if sp["end_kmh_range"] else [])
+        if sp["supported_kmh"] is not None:  # widened by the config
+            lows.append(sp["supported_kmh"][0])
+            highs.append(sp["supported_kmh"][1])
         return min(lows) / KMH, max(highs) / KMH
 
     def _step_choice(self, lo: float, hi: float, extra: np.ndarray | None) -> StepChoice:
@@ -581,7 +652,8 @@ class HuntingTask:
             if not (lo - 1e-9 <= start / KMH and end / KMH <= hi + 1e-9 and start <= end):
                 raise ConfigError(
                     f"reset speeds start_kmh={start:g}, end_kmh={end:g} must satisfy "
-                    f"{lo * KMH:g} <= start_kmh <= end_kmh <= {hi * KMH:g} (the range the step size was chosen for)"
+                    f"{lo * KMH:g} <= start_kmh <= end_kmh <= {hi * KMH:g} (the range the step size was chosen for; "
+                    "config 'speed.supported_kmh' widens it)"
                 )
             scenario = scenarios.draw_scenario(self.config["randomize"], options, rng, list(self.channel_names))
             scenario.factors.update(options.get("params", {}) or {})
@@ -592,15 +664,26 @@ class HuntingTask:
             sigma = self.config["initial_perturbation"]
             offsets = rng.normal(0.0, sigma, 3)
             yaws = rng.normal(0.0, sigma / (2 * self.base_params.L1), 3)
+            large = False
             if self.config["large_perturbation_probability"] > 0 and rng.random() < self.config["large_perturbation_probability"]:
                 size = self.config["large_perturbation"]
                 offsets = rng.uniform(0.5, 1.0, 3) * size * rng.choice([-1.0, 1.0], 3)
+                large = True
             x[[Y1, Y2, YB]] += offsets
             x[[PSI1, PSI2, PSIB]] += yaws
             if self.on_routes:
                 distance = slot.start_m
             else:
                 distance = rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
+            self._episode_draws[i] = {
+                "start_kmh": float(start), "end_kmh": float(end), "accel_m_per_s2": float(accel),
+                "track_position_m": float(distance),
+                "route": self.route_layout.routes[slot.route_index].name if self.on_routes else None,
+                "route_copy": int(slot.copy) if self.on_routes else None,
+                "initial_offset_m": dict(zip(("y1", "y2", "yb"), map(float, offsets))),
+                "initial_yaw_rad": dict(zip(("psi1", "psi2", "psib"), map(float, yaws))),
+                "large_perturbation": large,
+            }  # fmt: skip
             self.sim.set_rows(i, x, start / KMH, accel, distance, end_speed=end / KMH, coefficients=model.coefficients)
             self._set_health(i, scenario)
             if self.sensors_enabled:
@@ -632,7 +715,8 @@ class HuntingTask:
         lo, hi = self.speed_limits()
         if not lo * KMH - 1e-9 <= end_kmh <= hi * KMH + 1e-9:
             raise ConfigError(f"ramp_rows end_kmh = {end_kmh!r} is not allowed; allowed: the config's speed range "
-                              f"[{lo * KMH:g}, {hi * KMH:g}] km/h (it sets the integration step)")  # fmt: skip
+                              f"[{lo * KMH:g}, {hi * KMH:g}] km/h (it sets the integration step; config "
+                              "'speed.supported_kmh' widens it)")  # fmt: skip
         now = self.sim.motion[rows, M_SPEED] * KMH
         wrong = now < end_kmh - 1e-9 if accel < 0 else (now > end_kmh + 1e-9 if accel > 0 else np.zeros(now.shape, bool))
         if np.any(wrong):
@@ -674,6 +758,19 @@ class HuntingTask:
     def scenario(self, row: int = 0) -> dict[str, Any]:
         """What row's episode runs with: parameter factors, conicity, faults (JSON-friendly)."""
         return self.scenarios[row].as_dict()
+
+    def scenario_summary(self, row: int = 0) -> dict[str, Any]:
+        """Every value drawn (or pinned by a reset option) for row's episode, JSON-friendly: the
+        :meth:`scenario` (parameter factors, conicity, suspension, creep, axle load, actuator
+        gains and faults: ``failed_actuator`` and ``stuck_actuator`` are None when the episode has
+        no such fault), then the speed ramp (``start_kmh``, ``end_kmh``, ``accel_m_per_s2``), the
+        start position on the track (``track_position_m``; ``route`` and ``route_copy`` on
+        routes, else None), the initial offsets and yaws added to the equilibrium
+        (``initial_offset_m``, ``initial_yaw_rad``, ``large_perturbation``) and the sensor biases
+        in SI units (``sensor_bias``, per channel; None with the sensor model off). The single
+        and vector envs put it in the info of each reset as ``scenario``."""
+        bias = dict(zip(SENSOR_NAMES, map(float, self.sensor_bias[row]))) if self.sensors_enabled else None
+        return {**self.scenario(row), **self._episode_draws[row], "sensor_bias": bias}
 
     @staticmethod
     def _draw(rng, forced, value, bounds, name) -> float:
@@ -873,6 +970,42 @@ class HuntingTask:
         flags = self.flags[row]
         return bool(flags[F_TERMINATED]), bool(flags[F_TRUNCATED])
 
+    def criterion_quantities(self, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The :data:`CRITERION_FIELDS` of ``rows`` (default all) now, each with the rows as its
+        first axis: what a running-stability or safety criterion (EN 14363) is built from, from
+        the simulator's state and contact (:func:`_criterion_rows`)."""
+        rows = np.arange(self.num_envs) if rows is None else np.atleast_1d(np.asarray(rows, dtype=np.int64))
+        out = np.empty((rows.size, N_CRITERION))
+        sim = self.sim
+        _criterion_rows(rows, sim.x, sim.motion, sim.coefficients, sim.track_sample, out)
+        return self._criterion_columns(out)
+
+    @staticmethod
+    def _criterion_columns(out: np.ndarray) -> dict[str, np.ndarray]:
+        k = out.shape[0]
+        flags = out[:, K_FLANGE_WHEEL1:] > 0.5
+        values = {
+            "wheelset_lateral_rel_rail_m": out[:, K_REL1 : K_REL1 + 2],
+            "flange_contact": flags[:, 4:6],
+            "wheel_flange_contact": flags[:, :4].reshape(k, 2, 2),
+            "sum_y_n": out[:, K_SUM_Y1 : K_SUM_Y1 + 2],
+            "wheel_y_over_q": out[:, K_Y_OVER_Q1 : K_Y_OVER_Q1 + 4].reshape(k, 2, 2),
+            "y_over_q": out[:, K_Y_OVER_Q_MAX],
+        }
+        assert tuple(values) == tuple(CRITERION_FIELDS)
+        return values
+
+    def _criterion_info(self, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The criterion fields for the infos (only with config ``info.criterion``); on
+        routes ``flange_contact`` and ``y_over_q`` stay the route variant's own (the same
+        quantities, computed in the step)."""
+        if not self._criterion_on:
+            return {}
+        values = self.criterion_quantities(rows)
+        if self.on_routes:
+            del values["flange_contact"], values["y_over_q"]
+        return values
+
     def info_dict(self, row: int) -> dict[str, Any]:
         """The step info of one environment (see ``BogieHuntingEnv``)."""
         info = self.info[row].copy()  # the arrays below are views of this copy
@@ -888,7 +1021,28 @@ class HuntingTask:
             "actuator_power": info[I_POWER : I_POWER + N_CHANNELS],
             "blowup": bool(flags[F_BLOWUP]),
             **(self._curving_info(info, flags) if self.on_routes else {}),
+            **(self._criterion_row_info(row) if self._criterion_on else {}),
         }
+
+    def _criterion_row_info(self, row: int) -> dict[str, Any]:
+        """One row's criterion fields (:data:`CRITERION_FIELDS`; on routes without the route
+        variant's own ``flange_contact`` and ``y_over_q``): the single env's per-step path."""
+        sim, rows, out = self.sim, self._one_row, self._one_out
+        rows[0] = row
+        _criterion_rows(rows, sim.x, sim.motion, sim.coefficients, sim.track_sample, out)
+        o = out[0].copy()  # the arrays below are views of this copy
+        flags = o[K_FLANGE_WHEEL1:] > 0.5
+        values = {
+            "wheelset_lateral_rel_rail_m": o[K_REL1 : K_REL1 + 2],
+            "flange_contact": flags[4:6],
+            "wheel_flange_contact": flags[:4].reshape(2, 2),
+            "sum_y_n": o[K_SUM_Y1 : K_SUM_Y1 + 2],
+            "wheel_y_over_q": o[K_Y_OVER_Q1 : K_Y_OVER_Q1 + 4].reshape(2, 2),
+            "y_over_q": float(o[K_Y_OVER_Q_MAX]),
+        }
+        if self.on_routes:
+            del values["flange_contact"], values["y_over_q"]
+        return values
 
     @staticmethod
     def _curving_info(info: np.ndarray, flags: list) -> dict[str, Any]:
@@ -925,6 +1079,7 @@ class HuntingTask:
                 "cant_deficiency_m": self.info[:, I_CANT_DEFICIENCY].copy(),
                 "y_over_q_exceeded": self.flags[:, F_Y_OVER_Q].astype(bool),
             })  # fmt: skip
+        values.update(self._criterion_info())
         mask = np.ones(self.num_envs, dtype=bool)
         out: dict[str, np.ndarray] = {}
         for key, value in values.items():

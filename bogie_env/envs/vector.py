@@ -41,6 +41,18 @@ class BogieHuntingVectorEnv(VectorEnv):
     Made by ``gym.make_vec("Bogie/Hunting-v0", num_envs=N, vectorization_mode="vector_entry_point")``.
     It truncates episodes itself: at the end of the ramp, or after ``max_episode_steps``
     (default: the configured ramp's length plus 10 %).
+
+    Infos: the single env's fields as arrays over the envs (``BogieHuntingEnv``, "Info"), each
+    with its ``_key`` mask; with config ``info.criterion`` the per-step criterion fields
+    (``wheelset_lateral_rel_rail_m``, ``flange_contact``, ``wheel_flange_contact``, ``sum_y_n``,
+    ``wheel_y_over_q``, ``y_over_q``) are computed for all envs in one compiled call. A ``reset`` and a ``step`` that restarts
+    envs add ``scenario``: an object array holding each (re)started env's scenario summary
+    (``HuntingTask.scenario_summary``), its ``_scenario`` mask True for those envs only.
+
+    Autoreset: a finished env restarts with no reset options (a random speed and scenario as
+    the config draws them), unless config ``autoreset.reuse_options`` is true: then with the
+    options of its last ``reset(options=...)`` (``reset_mask`` aside), e.g. every episode of a
+    fixed-speed, fault-free study stays at its speed and fault-free.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"], "render_fps": 100}
@@ -70,6 +82,7 @@ class BogieHuntingVectorEnv(VectorEnv):
         self._renderer = None
         self._seeded = False
         self._started = np.zeros(self.num_envs, dtype=bool)  # rows that have had a reset
+        self._row_options: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]  # each row's last reset options
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: Mapping[str, Any] | None = None):
         """Reset every env, or with ``options={"reset_mask": mask}`` (bool, (num_envs,)) only the
@@ -98,10 +111,34 @@ class BogieHuntingVectorEnv(VectorEnv):
             self.task.seed_rows(rows, [seeds[i] for i in rows])
             self._seeded = True
         self.task.reset_rows(rows, options or None)
+        for i in rows:
+            self._row_options[i] = options
         self._episode_steps[rows] = 0
         self._autoreset[rows] = False
         self._started[rows] = True
-        return self.task.obs.copy(), self.task.batched_infos()
+        return self.task.obs.copy(), self._with_scenarios(self.task.batched_infos(), rows)
+
+    def _with_scenarios(self, infos: dict[str, Any], rows: np.ndarray) -> dict[str, Any]:
+        """``infos`` plus ``scenario``: an object array holding each reset row's
+        ``task.scenario_summary`` (None elsewhere), masked by ``_scenario``."""
+        scenario = np.full(self.num_envs, None, dtype=object)
+        mask = np.zeros(self.num_envs, dtype=bool)
+        for i in rows:
+            scenario[i] = self.task.scenario_summary(int(i))
+        mask[rows] = True
+        return {**infos, "scenario": scenario, "_scenario": mask}
+
+    def _autoreset_rows(self, rows: np.ndarray) -> None:
+        """Start the next episode of finished rows: with no options, or (config
+        ``autoreset.reuse_options``) with each row's last reset options."""
+        if not self.task.config["autoreset"]["reuse_options"]:
+            self.task.reset_rows(rows)
+            return
+        groups: dict[int, list[int]] = {}
+        for i in rows:
+            groups.setdefault(id(self._row_options[i]), []).append(int(i))
+        for group in groups.values():
+            self.task.reset_rows(np.array(group), self._row_options[group[0]] or None)
 
     def step(self, actions):
         if not self._started.all():
@@ -115,13 +152,16 @@ class BogieHuntingVectorEnv(VectorEnv):
         rewards = self.task.reward.copy()
         restarting = np.nonzero(self._autoreset)[0]
         if restarting.size:  # NEXT_STEP: these finished last step; this step is their reset
-            self.task.reset_rows(restarting)
+            self._autoreset_rows(restarting)
             self._episode_steps[restarting] = 0
             rewards[restarting] = 0.0
             terminated[restarting] = False
             truncated[restarting] = False
         self._autoreset = terminated | truncated
-        return self.task.obs.copy(), rewards, terminated, truncated, self.task.batched_infos()
+        infos = self.task.batched_infos()
+        if restarting.size:
+            infos = self._with_scenarios(infos, restarting)
+        return self.task.obs.copy(), rewards, terminated, truncated, infos
 
     def render(self):
         if self.render_mode is None:

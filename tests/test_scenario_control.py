@@ -1,0 +1,360 @@
+"""Scenario control through the public API: faults off on request, the scenario summary at
+reset, one sensor-noise knob, the per-step criterion fields, autoreset with the last options,
+and the supported speed range.
+
+Oracles: a fault switched off leaves the actuator healthy and the other draws where they
+were; the summary's initial offsets rebuild the start state from the equilibrium; one scale
+factor equals editing every channel; ΣY equals the stability protocol's function and, from a
+second code path, the per-wheel Y; flange flags on states placed on either flange; an
+autoreset row restarts exactly like a row reset by hand with the same options.
+"""
+
+import dataclasses
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from bogie_agents.stability_protocol import flange_touching
+from bogie_agents.vec_env import BogieHuntingSB3VecEnv
+from bogie_env.actuators import H_GAIN, H_HELD_FORCE
+from bogie_env.analysis.en14363 import running_signals_rows
+from bogie_env.envs import scenario as scenarios
+from bogie_env.dynamics import P_WPA, BogieModel, state_index
+from bogie_env.envs.config import bogie_params, make_config
+from bogie_env.envs.hunting_env import BogieHuntingEnv
+from bogie_env.envs.sensors import S_NOISE_RMS, SENSOR_NAMES
+from bogie_env.envs.task import CRITERION_FIELDS, Y1, Y2, HuntingTask
+from bogie_env.envs.vector import BogieHuntingVectorEnv
+from bogie_env.params import ConfigError
+from bogie_env.track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2
+
+#: v1 at one speed, nothing drawn: a quick, controlled v1 world.
+FIXED = {"speed": {"start_kmh": 300.0, "end_kmh": 300.0, "accel": 0.0}, "randomize": {}}
+#: every episode draws a fault: failed with probability 1/2, else stuck
+ALWAYS_FAULTY = {**FIXED, "randomize": {"conicity": [0.05, 0.2], "actuator_failure_probability": 0.5,
+                                        "actuator_stuck_probability": 0.5}}  # fmt: skip
+SHORT = {"speed": {"start_kmh": 300.0, "end_kmh": 306.0, "accel": 5.0}}  # 0.33 s episodes
+CRITERION = {"info": {"criterion": True}}
+
+
+def v1_task(config=FIXED, n=1):
+    return HuntingTask(n, make_config(config, variant="v1"))
+
+
+def reset(task, seed, options=None):
+    task.seed_rows(np.array([0]), [seed])
+    task.reset_rows(np.array([0]), options)
+    return task.scenario(0)
+
+
+# ---- faults off on request ---------------------------------------------------------------------
+def test_no_fault_options_switch_the_drawn_faults_off_without_moving_other_draws():
+    task = v1_task(ALWAYS_FAULTY)
+    for seed in range(12):
+        drawn = reset(task, seed)
+        assert (drawn["failed_actuator"] is None) != (drawn["stuck_actuator"] is None)  # always one fault
+        clean = reset(task, seed, dict(scenarios.NO_FAULTS))
+        assert clean["failed_actuator"] is None and clean["stuck_actuator"] is None
+        assert clean["conicity"] == drawn["conicity"]  # the random stream is not shifted
+        assert np.all(task.health[0, H_GAIN] == 1.0) and np.all(np.isnan(task.health[0, H_HELD_FORCE]))
+        # each "none" only switches its own fault off
+        only_failed_off = reset(task, seed, {"failed_actuator": "none"})
+        assert only_failed_off["failed_actuator"] is None and only_failed_off["stuck_actuator"] == drawn["stuck_actuator"]
+        only_stuck_off = reset(task, seed, {"stuck_actuator": "none"})
+        assert only_stuck_off["stuck_actuator"] is None and only_stuck_off["failed_actuator"] == drawn["failed_actuator"]
+
+
+def test_a_fault_free_episode_drives_every_channel():
+    """With the failure probability 1, every channel the action drives gives force only when
+    asked for a fault-free episode."""
+    config = {**FIXED, "randomize": {"actuator_failure_probability": 1.0}}
+    env = BogieHuntingEnv(config, variant="v1")
+    for options, expect_all in ((None, False), ({"failed_actuator": "none"}, True)):
+        env.reset(seed=3, options=options)
+        for _ in range(5):
+            _, _, _, _, info = env.step(np.ones(4))
+        assert bool(np.all(np.abs(info["actuator_force"]) > 0)) == expect_all
+
+
+@pytest.mark.parametrize(
+    "options,message",
+    [
+        ({"failed_actuator": "None"}, "'failed_actuator' = 'None' is not an active channel; allowed: 'none'"),
+        ({"stuck_actuator": 3}, "'stuck_actuator' = 3 is not an active channel"),
+        ({"failed_actuator": "frame_yaw", "stuck_actuator": "frame_lateral"}, "give at most one"),
+    ],
+)
+def test_bad_fault_options_name_the_value_and_what_is_allowed(options, message):
+    with pytest.raises(ConfigError, match=message):
+        reset(v1_task(), 0, options)
+
+
+def test_a_fault_with_the_other_switched_off_is_allowed():
+    s = reset(v1_task(ALWAYS_FAULTY), 1, {"failed_actuator": "frame_yaw", "stuck_actuator": "none"})
+    assert s["failed_actuator"] == "frame_yaw" and s["stuck_actuator"] is None
+
+
+# ---- the scenario summary at reset --------------------------------------------------------------
+def test_reset_info_states_every_drawn_value():
+    env = BogieHuntingEnv({"randomize": {**ALWAYS_FAULTY["randomize"], "damper_factor": [0.5, 1.0], "Csy": [0.5, 1.0]}},
+                          variant="v1")  # fmt: skip
+    _, info = env.reset(seed=4, options={"start_kmh": 250.0})
+    task = env.unwrapped.task
+    summary = info["scenario"]
+    fields = {f.name for f in dataclasses.fields(scenarios.Scenario)} - {"factors"}
+    assert fields <= set(summary) and summary["params"].keys() == {"Csy"}
+    assert summary == {**task.scenario(0), **{k: summary[k] for k in set(summary) - set(task.scenario(0))}}
+    assert (summary["failed_actuator"] is None) != (summary["stuck_actuator"] is None)
+    assert summary["start_kmh"] == 250.0 and summary["end_kmh"] == 600.0 and summary["accel_m_per_s2"] == 1.5
+    assert summary["track_position_m"] == task.distance_m[0]
+    assert summary["sensor_bias"] == dict(zip(SENSOR_NAMES, task.sensor_bias[0].tolist()))
+    # the initial offsets and yaws rebuild the start state from the scenario bogie's equilibrium
+    model = scenarios.scenario_model(task.base_params, task.scenarios[0], task.model)
+    x = model.equilibrium(250.0 / 3.6)
+    for name, value in {**summary["initial_offset_m"], **summary["initial_yaw_rad"]}.items():
+        x[state_index(name)] += value
+    assert np.array_equal(x, task.states[0])
+
+
+def test_vector_env_reports_the_scenario_of_each_started_episode():
+    vec = BogieHuntingVectorEnv(2, SHORT)
+    _, info = vec.reset(seed=0)
+    assert info["_scenario"].all() and [s["start_kmh"] for s in info["scenario"]] == [300.0, 300.0]
+    mask = np.array([False, True])
+    _, info = vec.reset(options={"reset_mask": mask, "start_kmh": 302.0})
+    assert info["_scenario"].tolist() == [False, True] and info["scenario"][1]["start_kmh"] == 302.0
+    seen = 0
+    for _ in range(80):
+        restarting = vec._autoreset.copy()
+        _, _, _, _, info = vec.step(np.zeros((2, 4)))
+        assert info.get("_scenario", np.zeros(2, bool)).tolist() == restarting.tolist()
+        seen += int(restarting.sum())
+    assert seen >= 2
+
+
+# ---- one sensor-noise knob ----------------------------------------------------------------------
+def _sensor_run(config, steps=30):
+    task = v1_task({**FIXED, **config})
+    reset(task, 5)
+    obs = [task.obs.copy()]
+    for _ in range(steps):
+        task.step(np.zeros((1, 4)))
+        obs.append(task.obs.copy())
+    return task, np.array(obs)
+
+
+def test_noise_and_bias_scale_equal_editing_every_channel():
+    defaults = make_config(variant="v1")["sensors"]
+    by_hand = {name: {"noise_density": 2.5 * defaults[name]["noise_density"], "bias": 0.5 * defaults[name]["bias"]}
+               for name in SENSOR_NAMES}  # fmt: skip
+    a, obs_a = _sensor_run({"sensors": {"noise_scale": 2.5, "bias_scale": 0.5}})
+    b, obs_b = _sensor_run({"sensors": by_hand})
+    assert np.array_equal(a.sensor_table, b.sensor_table)
+    np.testing.assert_allclose(a.sensor_bias, b.sensor_bias, rtol=1e-12)
+    np.testing.assert_allclose(obs_a, obs_b, rtol=0, atol=1e-6)
+    nominal, obs_n = _sensor_run({})
+    np.testing.assert_allclose(a.sensor_table[:, S_NOISE_RMS], 2.5 * nominal.sensor_table[:, S_NOISE_RMS], rtol=1e-12)
+    assert not np.allclose(obs_a, obs_n)
+
+
+def test_zero_scales_measure_the_clean_filtered_channels():
+    off, obs_off = _sensor_run({"sensors": {"noise_scale": 0.0, "bias_scale": 0.0}})
+    zero = {name: {"noise_density": 0.0, "bias": 0.0} for name in SENSOR_NAMES}
+    _, obs_zero = _sensor_run({"sensors": zero})
+    assert np.all(off.sensor_bias == 0.0) and np.array_equal(obs_off, obs_zero)
+
+
+@pytest.mark.parametrize("key,value", [("noise_scale", -1.0), ("bias_scale", "big"), ("noise_scale", math.inf)])
+def test_bad_scales_name_the_key(key, value):
+    with pytest.raises(ConfigError, match=f"sensors.{key}"):
+        make_config({"sensors": {key: value}}, variant="v1")
+
+
+def test_the_lqg_design_sees_the_noise_scale():
+    from bogie_agents.controllers import LQGController
+
+    def errors(config):  # the filter's sensor errors, without designing the whole controller
+        config = make_config(config, variant="v1")
+        return LQGController.sensor_errors(SimpleNamespace(config=config, model=BogieModel(bogie_params(config))))
+
+    (n0, b0), (n1, b1) = errors(None), errors({"sensors": {"noise_scale": 3.0, "bias_scale": 2.0}})
+    np.testing.assert_allclose(n1, 3.0 * n0, rtol=1e-12)
+    np.testing.assert_allclose(b1, 2.0 * b0, rtol=1e-12)
+
+
+# ---- per-step criterion fields ------------------------------------------------------------------
+def test_criterion_fields_agree_with_the_stability_protocol_and_the_wheel_forces():
+    env = BogieHuntingEnv({**FIXED, **CRITERION, "large_perturbation_probability": 1.0}, variant="v1")  # on the flange
+    _, info = env.reset(seed=2)
+    task = env.unwrapped.task
+    rng = np.random.default_rng(0)
+    contact_steps = 0
+    for k in range(60):
+        if k:
+            _, _, _, _, info = env.step(rng.uniform(-1, 1, 4))
+        assert set(CRITERION_FIELDS) <= set(info)
+        signals = np.zeros((1, 3))
+        running_signals_rows(task.sim.rows, signals)
+        assert np.array_equal(info["sum_y_n"], signals[0, :2])  # the protocol's ΣY, bit for bit
+        assert np.array_equal(info["wheelset_lateral_rel_rail_m"], task.relative_lateral_m[0])
+        assert bool(info["flange_contact"].any()) == bool(flange_touching(task)[0])
+        assert np.array_equal(info["flange_contact"], info["wheel_flange_contact"].any(axis=1))
+        # per wheelset, the rails' lateral force on it is Y_right - Y_left (each + outwards)
+        q = 0.5 * task.P[0, P_WPA]
+        np.testing.assert_allclose(q * (info["wheel_y_over_q"][:, 1] - info["wheel_y_over_q"][:, 0]), info["sum_y_n"],
+                                   rtol=1e-9, atol=1e-6)  # fmt: skip
+        assert info["y_over_q"] == info["wheel_y_over_q"].max()
+        contact_steps += int(info["flange_contact"].any())
+    assert contact_steps > 0
+
+
+def test_flange_contact_flags_the_wheel_on_the_flange():
+    task = v1_task()
+    reset(task, 0)
+    delta = task.delta(0)
+    x = task.states.copy()
+    track = task.sim.track_sample[0]
+    x[0, Y1] = track[ALIGNMENT_WHEELSET1] + delta + 1e-3  # wheelset 1 on its left flange
+    x[0, Y2] = track[ALIGNMENT_WHEELSET2] - delta - 1e-3  # wheelset 2 on its right flange
+    task.set_states(x)
+    q = task.criterion_quantities()
+    assert q["wheel_flange_contact"][0].tolist() == [[True, False], [False, True]]
+    assert q["flange_contact"][0].tolist() == [True, True]
+    np.testing.assert_allclose(q["wheelset_lateral_rel_rail_m"][0], [delta + 1e-3, -delta - 1e-3])
+    y_over_q = q["wheel_y_over_q"][0]
+    # the flanging wheels push their rails outwards, more than the other wheel of their wheelset
+    assert y_over_q[0, 0] > max(0.1, y_over_q[0, 1]) and y_over_q[1, 1] > max(0.1, y_over_q[1, 0])
+    assert q["sum_y_n"][0, 0] < 0 < q["sum_y_n"][0, 1]  # the rails push the wheelsets back to the centre
+    x[0, Y1] = track[ALIGNMENT_WHEELSET1] + 0.5 * delta
+    x[0, Y2] = track[ALIGNMENT_WHEELSET2]
+    task.set_states(x)
+    assert not task.criterion_quantities()["wheel_flange_contact"].any()
+
+
+def test_vector_env_criterion_fields_match_the_single_envs():
+    n, seed = 3, 5
+    vec = BogieHuntingVectorEnv(n, {**SHORT, **CRITERION})
+    singles = [BogieHuntingEnv({**SHORT, **CRITERION}) for _ in range(n)]
+    _, vinfo = vec.reset(seed=seed)
+    infos = [e.reset(seed=seed + i)[1] for i, e in enumerate(singles)]
+    for _ in range(10):
+        for key in CRITERION_FIELDS:
+            assert vinfo[f"_{key}"].all()
+            for i in range(n):
+                assert np.array_equal(vinfo[key][i], infos[i][key]), key
+        actions = np.full((n, 4), 0.5)
+        _, _, _, _, vinfo = vec.step(actions)
+        infos = [e.step(actions[i])[4] for i, e in enumerate(singles)]
+
+
+def test_criterion_fields_are_off_by_default_and_on_when_asked():
+    for config, present in ((None, False), (CRITERION, True)):
+        _, info = BogieHuntingEnv(config).reset(seed=0)
+        _, vinfo = BogieHuntingVectorEnv(2, config).reset(seed=0)
+        assert (set(CRITERION_FIELDS) <= set(info)) == present and (set(CRITERION_FIELDS) <= set(vinfo)) == present
+        assert present or not set(CRITERION_FIELDS) & (set(info) | set(vinfo))
+    with pytest.raises(ConfigError, match="'info.criterion' = 1"):
+        make_config({"info": {"criterion": 1}})
+    with pytest.raises(ConfigError, match="'info.criterion' = 1"):
+        make_config({"info": {"criterion": 1}})
+
+
+# ---- autoreset with the last options ------------------------------------------------------------
+def _run_to_restart(vec, steps=60):
+    """Step until every row has restarted at least once; returns the scenario of each row's
+    first restart."""
+    first: dict[int, dict] = {}
+    for _ in range(steps):
+        _, _, _, _, info = vec.step(np.zeros((vec.num_envs, 4)))
+        for i in np.nonzero(info.get("_scenario", np.zeros(vec.num_envs, bool)))[0]:
+            first.setdefault(int(i), info["scenario"][i])
+        if len(first) == vec.num_envs:
+            return first
+    raise AssertionError(f"only rows {sorted(first)} restarted")
+
+
+@pytest.mark.parametrize("reuse", [False, True])
+def test_autoreset_reuses_each_rows_last_options_when_asked(reuse):
+    config = {**SHORT, "autoreset": {"reuse_options": reuse}}
+    vec = BogieHuntingVectorEnv(2, config)
+    vec.reset(seed=0, options={"start_kmh": 303.0})
+    vec.reset(options={"reset_mask": np.array([False, True]), "start_kmh": 304.0, "params": {"Csy": 0.8}})
+    first = _run_to_restart(vec)
+    if reuse:
+        assert first[0]["start_kmh"] == 303.0 and first[0]["params"] == {}
+        assert first[1]["start_kmh"] == 304.0 and first[1]["params"] == {"Csy": 0.8}
+    else:
+        assert first[0]["start_kmh"] == first[1]["start_kmh"] == 300.0 and first[1]["params"] == {}
+
+
+def test_an_autoreset_row_restarts_like_a_row_reset_by_hand():
+    options = {"start_kmh": 303.0, **scenarios.NO_FAULTS}
+    config = {**SHORT, "randomize": ALWAYS_FAULTY["randomize"]}
+    vec = BogieHuntingVectorEnv(1, {**config, "autoreset": {"reuse_options": True}}, variant="v1")
+    vec.reset(seed=9, options=options)
+    single = BogieHuntingEnv(config, variant="v1")
+    single.reset(seed=9, options=options)
+    while True:  # the single env's episode end, then its hand-made reset with the same options
+        vobs, _, vterm, vtrunc, _ = vec.step(np.zeros((1, 4)))
+        _, _, term, trunc, _ = single.step(np.zeros(4))
+        if term or trunc:
+            break
+    vobs, _, _, _, vinfo = vec.step(np.zeros((1, 4)))  # NEXT_STEP: the reset
+    obs, info = single.reset(options=options)
+    assert np.array_equal(vobs[0], obs) and vinfo["scenario"][0] == info["scenario"]
+    assert info["scenario"]["failed_actuator"] is None and info["scenario"]["stuck_actuator"] is None
+
+
+def test_sb3_vec_env_reuses_the_last_options_when_asked():
+    for reuse, expected in ((False, 300.0), (True, 303.0)):
+        env = BogieHuntingSB3VecEnv(2, {**SHORT, "autoreset": {"reuse_options": reuse}}, seed=0)
+        env.set_options({"start_kmh": 303.0})
+        env.reset()
+        assert [r["scenario"]["start_kmh"] for r in env.reset_infos] == [303.0, 303.0]
+        for _ in range(40):
+            env.step_async(np.zeros((2, 4)))
+            _, _, dones, _ = env.step_wait()
+            if dones.any():
+                break
+        assert dones.any()
+        for i in np.nonzero(dones)[0]:
+            assert env.reset_infos[i]["scenario"]["start_kmh"] == expected
+            assert env.task.speed_kmh[i] == expected
+
+
+# ---- the supported speed range ------------------------------------------------------------------
+def test_supported_kmh_widens_the_speed_range_without_moving_the_default_ramp():
+    narrow = BogieHuntingEnv(FIXED, variant="v1")
+    with pytest.raises(ConfigError, match=r"start_kmh=40.*'speed.supported_kmh' widens it"):
+        narrow.reset(seed=0, options={"start_kmh": 40.0})
+    wide = BogieHuntingEnv({**FIXED, "speed": {**FIXED["speed"], "supported_kmh": [40.0, 600.0]}}, variant="v1")
+    assert wide.unwrapped.task.speed_limits() == pytest.approx((40.0 / 3.6, 600.0 / 3.6))
+    _, info = wide.reset(seed=0)
+    assert info["speed_kmh"] == 300.0  # the default episode is unchanged
+    _, info = wide.reset(seed=0, options={"start_kmh": 40.0, "end_kmh": 40.0})
+    assert info["speed_kmh"] == 40.0 and info["scenario"]["start_kmh"] == 40.0
+    with pytest.raises(ConfigError, match="speed.supported_kmh"):
+        make_config({"speed": {"supported_kmh": [10.0, 600.0]}})
+
+
+@pytest.mark.parametrize("variant", [None, "v1"])
+def test_the_docstring_states_each_versions_speed_range(variant):
+    speed = make_config(variant=variant)["speed"]
+    text = " ".join(BogieHuntingEnv.__doc__.split())
+    assert f"{speed['start_kmh']:g}-{speed['end_kmh']:g} km/h" in text
+    assert "speed.supported_kmh" in text
+
+
+
+def test_route_info_keeps_its_fields_and_agrees_with_the_criterion_fields():
+    env = BogieHuntingEnv(CRITERION, variant="v1_route")
+    _, info = env.reset(seed=1, options={"route": "s-curve"})
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        _, _, _, _, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        q = env.unwrapped.task.criterion_quantities()
+        assert np.array_equal(info["flange_contact"], q["flange_contact"][0])
+        assert info["y_over_q"] == pytest.approx(q["y_over_q"][0], rel=1e-9)
+        np.testing.assert_allclose(info["guiding_force_n"], -info["sum_y_n"], rtol=1e-9, atol=1e-6)
