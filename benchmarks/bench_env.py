@@ -2,6 +2,7 @@
 
     python benchmarks/bench_env.py            # table
     python benchmarks/bench_env.py --json     # one JSON object
+    python benchmarks/bench_env.py --criterion-info [--seconds 3] [--sizes 1,4096]   # the criterion info fields' cost
 
 Each env step of bogie-env covers 10 ms of simulated time (2 RK4 substeps over 300-600 km/h).
 ``--contention`` adds the thread figures on a busy host (two CPU-burning processes beside it).
@@ -24,6 +25,7 @@ import numpy as np
 
 from bogie_agents.vec_env import BogieHuntingSB3VecEnv
 import bogie_env  # noqa: F401
+from bogie_env.envs.hunting_env import BogieHuntingEnv
 from bogie_env.envs.vector import BogieHuntingVectorEnv
 from bogie_env.simulator import PARALLEL_MIN_ROWS, default_num_threads
 
@@ -76,12 +78,65 @@ def rate_sb3(venv, n_calls: int) -> float:
     return best
 
 
+def seconds_per_step(step, seconds: float) -> float:
+    for _ in range(20):  # warm-up: kernels loaded, the loop chooser settled
+        step()
+    start, calls = time.perf_counter(), 0
+    while time.perf_counter() - start < seconds:
+        step()
+        calls += 1
+    return (time.perf_counter() - start) / calls
+
+
+def vector_rate(variant: str | None, n: int, criterion: bool, seconds: float) -> float:
+    env = BogieHuntingVectorEnv(n, {"info": {"criterion": criterion}}, variant=variant)
+    env.reset(seed=0)
+    actions = np.zeros((n, env.single_action_space.shape[0]), dtype=np.float32)
+    return n / seconds_per_step(lambda: env.step(actions), seconds)
+
+
+def single_rate(variant: str | None, criterion: bool, seconds: float) -> float:
+    env = BogieHuntingEnv({"info": {"criterion": criterion}}, variant=variant)
+    env.reset(seed=0)
+    action = np.zeros(env.action_space.shape, dtype=np.float32)
+
+    def step():
+        if any(env.step(action)[2:4]):
+            env.reset()
+
+    return 1.0 / seconds_per_step(step, seconds)
+
+
+def criterion_info_table(seconds: float, sizes: list[int], variants: list[str]) -> None:
+    """The cost of the per-step criterion info fields (``info.criterion``, off by default): front-end
+    steps per second with them off and on, the single env and the vector env, in one run. They
+    are computed when the front-end builds the info, not in ``HuntingTask.step``
+    (``benchmarks/bench_v1.py`` does not see them)."""
+    print(f"{'variant':>7} {'front-end':>12} {'off steps/s':>12} {'on steps/s':>12} {'off/on':>7}")
+    for name in variants:
+        variant = None if name == "v0" else name
+        off, on = single_rate(variant, False, seconds), single_rate(variant, True, seconds)
+        print(f"{name:>7} {'single':>12} {off:>12.0f} {on:>12.0f} {off / on:>7.2f}", flush=True)
+        for n in sizes:
+            off, on = vector_rate(variant, n, False, seconds), vector_rate(variant, n, True, seconds)
+            print(f"{name:>7} {f'vector {n}':>12} {off:>12.0f} {on:>12.0f} {off / on:>7.2f}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--sizes", default="1,64,1024,4096")
     parser.add_argument("--contention", action="store_true", help="also time the vector env beside CPU-burning processes")
+    parser.add_argument("--criterion-info", action="store_true",
+                        help="instead: the cost of the criterion info fields, steps/s with info.criterion off and on "
+                             "(--sizes for the vector env, --seconds per rate)")
+    parser.add_argument("--seconds", type=float, default=3.0, help="--criterion-info: seconds per rate")
+    parser.add_argument("--variants", default="v0,v1", help="--criterion-info: env variants")
     args = parser.parse_args()
+    if args.criterion_info:
+        sizes = [int(s) for s in args.sizes.split(",")] if args.sizes != "1,64,1024,4096" else [1, 4096]
+        criterion_info_table(args.seconds, sizes, args.variants.split(","))
+        return
     sizes = [int(s) for s in args.sizes.split(",")]
 
     results: dict = {}

@@ -68,7 +68,9 @@ def test_a_changed_number_in_a_block_or_in_tagged_prose_is_caught():
     readme = (ROOT / "README.md").read_text()
     name, _, content = sb.blocks(readme)[0]
     row = next(line for line in content.splitlines() if line.startswith("| passive |"))
-    planted = readme.replace(row, row.replace("| 358 |", "| 359 |"), 1)
+    cells = row.split("|")
+    cells[3] = f" {int(cells[3]) + 1} "  # passive's nominal speed, one km/h off
+    planted = readme.replace(row, "|".join(cells), 1)
     assert planted != readme and _stale_blocks(planted) == [name]
     tagged = next(m for m in sb.TAG.finditer(readme))
     number = tagged.group(1)

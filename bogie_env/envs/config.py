@@ -100,7 +100,7 @@ def default_config() -> dict[str, Any]:
         "curving": {"y_over_q_limit": None, "y_over_q_window_m": 2.0},
         # criterion: true adds the per-step criterion fields to every info (task.CRITERION_FIELDS:
         # displacement relative to the rail, flange contact, ΣY, Y/Q); off by default, as they cost
-        # a front-end step measurably (benchmarks/bench_info.py)
+        # a front-end step measurably (benchmarks/bench_env.py --criterion-info)
         "info": {"criterion": False},
         # reuse_options: the vector envs reset a finished row with the options of its last reset
         # (Gymnasium vector env: reset(options=...); SB3 VecEnv: set_options); false: no options

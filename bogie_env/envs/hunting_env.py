@@ -112,7 +112,7 @@ class BogieHuntingEnv(gym.Env):
     by each channel, mean over the step; negative = dissipated), `blowup` (bool).
 
     With config `info: {"criterion": true}` (off by default: they cost a front-end step
-    measurably, `benchmarks/bench_info.py`), every info adds what a running-stability or safety
+    measurably, `benchmarks/bench_env.py --criterion-info`), every info adds what a running-stability or safety
     criterion (EN 14363) is built from, at the end of the step, from the simulator's state and
     wheel-rail contact (`task.CRITERION_FIELDS`; `env.unwrapped.task.criterion_quantities()`
     gives them at any time, whatever the flag):
