@@ -62,7 +62,7 @@ about degraded parts, faults or the extra delay. A learned policy ignores its co
 above), ``cost``, ``margins`` (:func:`bogie_agents.margins.margins_table`), ``ramp`` (the
 env's own episode over 5 seeds, protocol v1's ramp onset) and ``ramp_down`` (per conicity of
 the grid, the speed where the controller stops hunting that was fully developed at the ceiling:
-the ramp-down method of the nonlinear critical speed, closed loop; :func:`ramp_down_part`). Another module
+the ramp-down method of the nonlinear critical speed, closed loop; :mod:`bogie_agents.ramp_down`). Another module
 adds a part by decorating ``fn(ctx: PartContext) -> dict`` with ``@register_part("name")``;
 the dict is merged into the controller's result. A module in :data:`PART_MODULES` is imported
 before the registry is read, so its parts are available to ``bogie evaluate --parts``
@@ -76,19 +76,20 @@ import importlib
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Callable, Iterable, Mapping, NamedTuple, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
-from scipy import signal
 
 from bogie_env.actuators import CHANNEL_NAMES, active_channels
-from bogie_env.analysis.en14363 import FRAME_ACCEL_LIMIT, running_signals_rows
+from bogie_env.analysis.en14363 import running_signals_rows
 from bogie_env.envs import scenario as scenarios
 from bogie_env.envs.config import bogie_params, make_config, merge_config
-from bogie_env.envs.sensors import SENSOR_NAMES
 from bogie_env.envs.task import HuntingTask
 from bogie_env.params import ConfigError
+
+from .criterion import (F0_RANGE_HZ, Assessment, assess, band_pass, criterion_text, dominant_frequency,  # noqa: F401
+                        flange_occupancy, frame_accel_limit, sliding_rms, sum_y_limit_n, sustained_flange_contact)
 
 #: The protocol version :class:`Settings` gives by default. v3 judges flange contact only when it
 #: is sustained (see :func:`sustained_flange_contact`); v2 counted every contact, so a track's
@@ -99,9 +100,6 @@ PROTOCOL_VERSIONS = (2, 3)
 #: Per version, the share of the assessed time's ``flange_window_s`` windows that must hold a
 #: flange contact for the contact time to count (v2: any).
 FLANGE_SUSTAINED_FRACTION = {2: 0.0, 3: 0.5}
-#: Where the instability frequency f0 is looked for (Hz): above the track's longest
-#: wavelengths at low speed, below the wheelset modes (60-85 Hz) and the 50 Hz Nyquist limit.
-F0_RANGE_HZ = (0.5, 20.0)
 #: Named degraded bogies: reset options of :mod:`bogie_env.envs.scenario`.
 DEGRADED: dict[str, dict[str, float]] = {
     "Kpx-50%": {"primary_longitudinal_stiffness": 0.5},
@@ -118,18 +116,6 @@ NOMINAL_OPTIONS: dict[str, Any] = {
     "axle_load": 1.0,
     "actuator_gain": 1.0,
 }
-
-
-def sum_y_limit_n(axle_load_n: float) -> float:
-    """EN 14363's ΣY rms limit for running stability: half of Prud'homme's limit
-    ``10 kN + 2 Q0 / 3`` with ``Q0 = P0 / 2`` the static wheel load, i.e. ``(10 kN + P0 / 3) / 2``."""
-    return 0.5 * (10e3 + axle_load_n / 3.0)
-
-
-def frame_accel_limit(frame_mass_kg: float) -> float:
-    """EN 14363's limit on the bogie frame's lateral acceleration (simplified method, sliding rms):
-    ``(12 - m+ / 5) / 2`` m/s² with ``m+`` the bogie mass in tonnes."""
-    return 0.5 * (12.0 - frame_mass_kg / 1e3 / 5.0)
 
 
 @dataclass
@@ -221,146 +207,6 @@ SCREENING: dict[str, Any] = {"seeds": 3, "worst_case_draws": 3, "tol_kmh": 4.0}
 def screening_settings(**overrides: Any) -> Settings:
     """The protocol's settings for a screening run (:data:`SCREENING`, marked ``screening``)."""
     return Settings(**{**SCREENING, **overrides, "screening": True})
-
-
-# ---- the pass criterion -----------------------------------------------------------------------
-def sliding_rms(x: np.ndarray, window: int, step: int) -> np.ndarray:
-    """rms of ``x`` (along the last axis) over windows of ``window`` samples starting every
-    ``step`` samples (only whole windows); shape ``x.shape[:-1] + (n_windows,)``."""
-    x = np.asarray(x, dtype=float)
-    if window < 1 or step < 1 or window > x.shape[-1]:
-        raise ValueError(f"sliding_rms: window {window} and step {step} must be >= 1 and window <= {x.shape[-1]} samples")
-    cs = np.concatenate([np.zeros(x.shape[:-1] + (1,)), np.cumsum(x * x, axis=-1)], axis=-1)
-    starts = np.arange(0, x.shape[-1] - window + 1, step)
-    return np.sqrt(np.maximum(cs[..., starts + window] - cs[..., starts], 0.0) / window)
-
-
-def dominant_frequency(x: np.ndarray, fs: float, band: tuple[float, float] = F0_RANGE_HZ) -> float:
-    """The peak of the Hann-windowed periodogram of ``x`` (summed over the leading axes) in ``band``."""
-    f, p = signal.periodogram(np.asarray(x, dtype=float), fs=fs, window="hann", axis=-1)
-    p = p.reshape(-1, f.size).sum(axis=0)
-    inside = (f >= band[0]) & (f <= band[1])
-    return float(f[inside][np.argmax(p[inside])])
-
-
-def band_pass(x: np.ndarray, f0: float, half_width: float, fs: float) -> np.ndarray:
-    """``x`` band-passed to ``f0 ± half_width`` (4th-order Butterworth, forward and backward:
-    zero phase), along the last axis; the lower edge is kept above 0.2 Hz."""
-    low = max(f0 - half_width, 0.2)
-    high = min(f0 + half_width, 0.45 * fs)
-    sos = signal.butter(4, [low, high], btype="band", fs=fs, output="sos")
-    return signal.sosfiltfilt(sos, np.asarray(x, dtype=float), axis=-1)
-
-
-def flange_occupancy(contact: np.ndarray, dt: float, window_s: float) -> np.ndarray:
-    """The share of the consecutive windows of ``window_s`` (whole windows only) in which a run's
-    wheelsets touch the flange at least once. ``contact`` (N, T): the flange-contact flag per
-    sample, every ``dt``; returns (N,)."""
-    contact = np.asarray(contact, dtype=bool)
-    per = max(1, int(round(window_s / dt)))
-    whole = contact.shape[-1] // per
-    if whole < 1:
-        raise ValueError(f"flange_occupancy: {contact.shape[-1]} samples hold no window of {window_s:g} s")
-    return contact[..., : whole * per].reshape(contact.shape[:-1] + (whole, per)).any(axis=-1).mean(axis=-1)
-
-
-def sustained_flange_contact(flange_time: np.ndarray, occupancy: np.ndarray | None, settings: "Settings") -> np.ndarray:
-    """Which runs fail on flange contact. A run fails when its wheelsets touch the flange for more
-    than ``flange_time_limit`` of the assessed time and (v3) the contact is sustained: it occurs
-    in at least ``flange_sustained_fraction`` of the assessed time's ``flange_window_s`` windows.
-
-    Why: a hunting cycle that reaches the flange touches it on every cycle (2-10 Hz here, so in
-    every second), while a rough track forces contacts at its isolated defects, a few seconds
-    apart (on the EN 13848-5 intervention track at 40-110 km/h the passive bogie touches in at
-    most 40 % of the seconds; hunting, in 80-100 %: docs/results.md, 'Hunting or forced
-    contact'). EN 14363 likewise judges running stability on a sustained oscillation. v2
-    (fraction 0) counts any contact; ``occupancy`` None: every window holds one."""
-    over = np.asarray(flange_time, dtype=float) > settings.flange_time_limit
-    if occupancy is None or not settings.flange_sustained_fraction:
-        return over
-    return over & (np.asarray(occupancy, dtype=float) >= settings.flange_sustained_fraction)
-
-
-@dataclass
-class Assessment:
-    """The criterion's quantities for N runs (arrays over the runs)."""
-
-    passed: np.ndarray
-    sum_y_rms_n: np.ndarray  # largest 100 m sliding rms of band-passed ΣY (either wheelset)
-    frame_accel_rms: np.ndarray  # same for the frame's lateral acceleration, m/s^2
-    flange_time: np.ndarray  # fraction of the evaluated time with |y - track| >= delta
-    f0_hz: np.ndarray
-    blowup: np.ndarray
-    sum_y_limit_n: np.ndarray
-    frame_accel_limit: float
-    flange_failed: np.ndarray  # flange contact that fails the run (sustained_flange_contact)
-    mean_offset: np.ndarray | None = None  # largest |mean wheelset displacement relative to the rail| / delta
-    flange_occupancy: np.ndarray | None = None  # share of the flange_window_s windows with a contact
-
-    def failed_by(self, i: int) -> list[str]:
-        """Which criteria run i fails."""
-        out = []
-        if self.blowup[i]:
-            return ["blowup"]
-        if self.sum_y_rms_n[i] > self.sum_y_limit_n[i]:
-            out.append("sum_y")
-        if self.frame_accel_rms[i] > self.frame_accel_limit:
-            out.append("frame_accel")
-        if self.flange_failed[i]:
-            out.append("flange_contact")
-        return out
-
-
-def assess(history: np.ndarray, flange_time: np.ndarray, blowup: np.ndarray, speeds_ms: np.ndarray, dt: float,
-           axle_load_n: np.ndarray, frame_mass_kg: float, settings: Settings,
-           mean_offset: np.ndarray | None = None, flange_occupancy: np.ndarray | None = None) -> Assessment:  # fmt: skip
-    """The pass criterion for N runs. ``history`` (N, 3, T): ΣY of wheelset 1 and 2 (N) and the
-    frame lateral acceleration (m/s²) over the evaluated time, sampled every ``dt``;
-    ``flange_time`` (N,), ``blowup`` (N,) and ``flange_occupancy`` (N,; :func:`flange_occupancy`,
-    None: contact counts as sustained) as measured during it."""
-    n = history.shape[0]
-    fs = 1.0 / dt
-    sum_y = np.full(n, np.inf)
-    accel = np.full(n, np.inf)
-    f0 = np.full(n, np.nan)
-    blown = np.asarray(blowup, dtype=bool) | ~np.all(np.isfinite(history), axis=(1, 2))
-    y_limit = sum_y_limit_n(np.asarray(axle_load_n, dtype=float)) * np.ones(n)
-    a_limit = frame_accel_limit(frame_mass_kg)
-    for i in np.nonzero(~blown)[0]:
-        # f0: where the three signals, each relative to its limit, have most power
-        f0[i] = dominant_frequency(history[i] / np.array([y_limit[i], y_limit[i], a_limit])[:, None], fs)
-        filtered = band_pass(history[i], f0[i], settings.band_half_width_hz, fs)
-        per_sample = speeds_ms[i] * dt
-        window = min(history.shape[2], max(1, int(round(settings.window_m / per_sample))))
-        step = max(1, int(round(settings.window_step_m / per_sample)))
-        rms = sliding_rms(filtered, window, step).max(axis=-1)
-        sum_y[i], accel[i] = rms[:2].max(), rms[2]
-    flange_failed = sustained_flange_contact(flange_time, flange_occupancy, settings)
-    passed = ~blown & (sum_y <= y_limit) & (accel <= a_limit) & ~flange_failed
-    return Assessment(passed, sum_y, accel, np.asarray(flange_time, dtype=float), f0, blown, y_limit, a_limit,
-                      flange_failed, None if mean_offset is None else np.asarray(mean_offset, dtype=float),
-                      None if flange_occupancy is None else np.asarray(flange_occupancy, dtype=float))
-
-
-def criterion_text(settings: Settings, axle_load_n: float, frame_mass_kg: float) -> dict[str, Any]:
-    """The criterion as stated beside every result."""
-    return {
-        "evaluated_s": [settings.transient_s, settings.duration_s],
-        "sum_y_rms_limit_n": round(sum_y_limit_n(axle_load_n), 1),
-        "frame_accel_rms_limit_m_per_s2": round(frame_accel_limit(frame_mass_kg), 3),
-        "sliding_rms": f"over {settings.window_m:g} m, step {settings.window_step_m:g} m",
-        "band_pass": f"f0 +- {settings.band_half_width_hz:g} Hz (4th-order Butterworth, zero phase); "
-                     f"f0 = peak of the summed spectra of SumY 1, SumY 2 and the frame acceleration, each "
-                     f"relative to its limit, in {F0_RANGE_HZ[0]:g}-{F0_RANGE_HZ[1]:g} Hz",
-        "flange_time_limit": settings.flange_time_limit,
-        "flange_contact": "|wheelset lateral displacement relative to the rail| >= flange clearance, either wheelset",
-        "flange_sustained": (f"the contact time counts only if a contact occurs in at least {settings.flange_sustained_fraction:g} "
-                             f"of the assessed time's {settings.flange_window_s:g} s windows (a hunting cycle touches on "
-                             "every cycle; a rough track at its isolated defects)") if settings.flange_sustained_fraction
-                            else "every contact counts (protocol v2)",
-        "blowup": "the env's blowup flag (|y - track| > 0.1 m or integrator failure) or a non-finite state or action",
-        "sources": "EN 14363:2016 running stability (SumY: (10 kN + 2 Q0 / 3) / 2; frame: (12 - m+ / 5) / 2)",
-    }  # fmt: skip
 
 
 # ---- controllers by what they are told ----------------------------------------------------------
@@ -509,26 +355,12 @@ class Progress:
         print(f"[protocol] {self.label}: {what}; {elapsed:.0f} s elapsed, ~{left:.0f} s left", file=sys.stderr, flush=True)
 
 
-#: The ideal world of the ``ramp_down_ideal`` part: a perfect track (no alignment) and sensors
-#: and observations without noise; each sensor keeps its bias and filter, the actuators their
-#: delay, lag, rate and force limits. Nothing random excites the bogie while it runs, so the
-#: runs do not depend on the integration step beyond its error. A seed still sets the 12 mm
-#: start and the sensor biases (the same sizes as under v1, other draws: a perfect track draws
-#: no start position on the alignment).
-IDEAL_WORLD_NAME = "perfect track, noise-free sensors (bias, filters and actuators as v1)"
-IDEAL_WORLD: dict[str, Any] = {
-    "track": {"level": None, "rms": 0.0},
-    "sensors": {name: {"noise_density": 0.0} for name in SENSOR_NAMES},
-    "observation": {"noise": 0.0},
-}
-
-
 def protocol_config(env_config: dict, settings: Settings, observation_type: str, delay_steps: int | None = None,
                     world: Mapping[str, Any] | None = None) -> dict:  # fmt: skip
     """The task config of the protocol's runs: fixed speeds over the search range, the env's
     randomisation ranges kept (they set the integration step) but every draw pinned by reset
     options, no random faults, the large initial perturbation on every row. ``world``: a config
-    overlay merged last, e.g. :data:`IDEAL_WORLD` (a perfect track, noise-free sensors)."""
+    overlay merged last, e.g. :data:`bogie_agents.ramp_down.IDEAL_WORLD` (a perfect track, noise-free sensors)."""
     ranges = {k: v for k, v in env_config["randomize"].items() if k not in scenarios.PROBABILITIES}
     update: dict[str, Any] = {
         "speed": {"start_kmh": settings.floor_kmh, "end_kmh": settings.ceiling_kmh, "accel": 0.0,
@@ -778,7 +610,7 @@ PartFunction = Callable[[PartContext], dict]
 PARTS: dict[str, PartFunction] = {}
 #: Modules that register more parts when imported; imported lazily. ``curving``: the curving
 #: columns on the shipped routes (:mod:`bogie_agents.curving_evaluation`).
-PART_MODULES: tuple[str, ...] = ("bogie_agents.curving_evaluation",)
+PART_MODULES: tuple[str, ...] = ("bogie_agents.ramp_down", "bogie_agents.curving_evaluation")
 DEFAULT_PARTS = ("critical", "cost")
 
 
@@ -918,172 +750,6 @@ def ramp_part(ctx: PartContext) -> dict[str, Any]:
 
     config = policy_config(ctx.env_config, ctx.observation_type)
     return {"ramp": ramp_onset(ctx.policy(), config, ProtocolSettings(seed=ctx.settings.seed))}
-
-
-class HuntingEnd(NamedTuple):
-    """Per row of a ramp-down: where the hunting it started with stops."""
-
-    kmh: np.ndarray  # the highest speed of the first window that passes after it
-    bound: np.ndarray  # "ended", "at_least" (first window passes) or "at_most" (no window passes)
-    first_pass: np.ndarray  # that window's index (the number of windows if none passes)
-
-
-def hunting_end(failing: np.ndarray, top_kmh: np.ndarray, floor_kmh: float, ceiling_kmh: float) -> HuntingEnd:
-    """Where the hunting a ramp-down started with stops, per row. ``failing`` (rows, windows):
-    the criterion's verdict on each window of the ramp, highest speeds first; ``top_kmh``
-    (windows,): each window's highest speed. The failing run that begins with the first window
-    is that hunting; the first window that passes after it starts where the hunting has
-    stopped. ``at_least`` the ceiling if the first window passes (the controller stopped the
-    hunting during the hold), ``at_most`` the floor if no window passes. Windows failing after
-    the first pass (e.g. a track-forced flange contact) do not lower the value."""
-    w = failing.shape[1]
-    first_pass = np.where(~failing, np.arange(w)[None, :], w).min(axis=1)
-    stopped = first_pass < w
-    value = np.where(stopped, top_kmh[np.minimum(first_pass, w - 1)], floor_kmh)
-    value[first_pass == 0] = ceiling_kmh
-    bound = np.where(first_pass == 0, "at_least", np.where(stopped, "ended", "at_most"))
-    return HuntingEnd(value, bound, first_pass)
-
-
-def ramp_speeds_kmh(settings: Settings, dt: float, steps: int) -> np.ndarray:
-    """The speed after each env step of the ramp-down (km/h): from the ceiling at
-    ``ramp_down_decel`` until the floor, where it stays."""
-    drop = 3.6 * settings.ramp_down_decel * dt * np.arange(1, steps + 1)
-    return np.maximum(settings.ceiling_kmh - drop, settings.floor_kmh)
-
-
-@register_part("ramp_down")
-def ramp_down_part(ctx: PartContext) -> dict[str, Any]:
-    """Closed-loop nonlinear critical speed by the ramp-down method, per conicity of the grid,
-    under the v1 defaults (the alert track, sensor noise): :func:`ramp_down_runs`."""
-    return {"ramp_down": ramp_down_runs(ctx)}
-
-
-@register_part("ramp_down_ideal")
-def ramp_down_ideal_part(ctx: PartContext) -> dict[str, Any]:
-    """The ramp-down in :data:`IDEAL_WORLD`: the same controller and loop (bias, filters, delay,
-    rate and force limits) on a perfect track with noise-free sensors. Nothing random knocks
-    the bogie off its hunting cycle during the ramp, so the value is where the closed loop's
-    cycle stops failing the criterion (the ramp-down method of the nonlinear critical speed,
-    True 2013, judged by the protocol's criterion instead of by the cycle's existence: a small
-    cycle that passes it may live on below), and it is insensitive to the integration step,
-    unlike the values judged under noise."""
-    return {"ramp_down_ideal": ramp_down_runs(ctx, IDEAL_WORLD, IDEAL_WORLD_NAME)}
-
-
-def ramp_down_runs(ctx: PartContext, world: Mapping[str, Any] | None = None,
-                   world_name: str | None = None) -> dict[str, Any]:  # fmt: skip
-    """Closed-loop nonlinear critical speed by the ramp-down method, per conicity of the grid
-    (``world``: a config overlay of the task, e.g. :data:`IDEAL_WORLD`, named ``world_name`` in the result).
-
-    Each seed's bogie runs passive at the ceiling for ``ramp_down_onset_s`` from the 12 mm
-    start (fully developed hunting on every conicity of the grid at 600 km/h; a seed whose
-    wheelsets did not touch the flange in the last second of it is listed in
-    ``not_hunting_at_switch_on``), then the controller is switched on (reset, as at a cold
-    start), holds the ceiling for ``transient_s`` and ramps down at ``ramp_down_decel`` to the
-    floor, where it runs one more window. The protocol's criterion judges windows as long as a
-    fixed-speed run's assessed time (15 s: 13.5 km/h of the default ramp), one starting every
-    ``ramp_down_stride_kmh`` (v3 judges a window's flange contact on the same length of ramp
-    centred on the window's top speed: its majority rule locates the end of sustained contact at
-    the middle of what it judges); the seed's value is where the hunting the ramp began with stops
-    (:func:`hunting_end`): the lowest speed at which that hunting, e.g. a limit cycle of the
-    saturated loop, survives. The fixed-speed search asks whether a 12 mm start grows into
-    hunting; this asks whether the controller gets the bogie out of hunting, and the two differ
-    where a stable limit cycle coexists with the stable running state (hysteresis).
-    """
-    s = ctx.settings
-    progress = Progress(ctx.progress.label, ctx.progress.enabled)  # this part's own time left
-    nominal_lam = bogie_params(ctx.env_config).lam
-    names = ("nominal",) + tuple(f"conicity:{lam:g}" for lam in s.conicities if not math.isclose(lam, nominal_lam))
-    cols = columns(ctx.env_config, replace(s, columns=names))
-    cases = [c for col in cols.values() for c in col]
-    n = len(cases)
-    task, policy = Runner(ctx)._task(cases, np.full(n, s.ceiling_kmh), "default", world)
-    dt = task.config["dt"]
-    onset, hold = int(round(s.ramp_down_onset_s / dt)), int(round(s.transient_s / dt))
-    length = int(round((s.duration_s - s.transient_s) / dt))  # a window: a fixed-speed run's assessed time
-    ramp = int(math.ceil((s.ceiling_kmh - s.floor_kmh) / 3.6 / s.ramp_down_decel / dt))
-    recorded = ramp + length  # the ramp, then one window at the floor
-    history = np.zeros((n, 3, recorded), dtype=np.float32)
-    contact = np.zeros((n, recorded), dtype=bool)
-    blown = np.zeros((n, recorded), dtype=bool)
-    blown_before = np.zeros(n, dtype=bool)
-    onset_contact = np.zeros(n)
-    buffer = np.zeros((n, 3))
-    zero = np.zeros((n, task.action_dim))
-    total = onset + hold + recorded
-    last_second = max(1, int(round(1.0 / dt)))
-    for k in range(total):
-        if k == onset:
-            policy.reset(n)
-        if k == onset + hold:
-            task.ramp_rows(np.arange(n), -s.ramp_down_decel, s.floor_kmh)
-        bad = step_guarded(task, zero if k < onset else policy.act(task.obs))
-        touching = flange_touching(task)
-        j = k - onset - hold
-        if j == ramp // 2:
-            midway = task.speed_kmh.copy()
-        if j >= 0:
-            running_signals_rows(task.sim.rows, buffer)
-            history[:, :, j] = buffer
-            contact[:, j] = touching
-            blown[:, j] = bad
-        else:
-            blown_before |= bad
-            if onset - last_second <= k < onset:
-                onset_contact += touching
-        if k % 500 == 499:
-            progress.report(f"ramp down: {k + 1}/{total} steps of {n} rows", k + 1, total - k - 1)
-    speed = ramp_speeds_kmh(s, dt, recorded)
-    moving = ~(blown.any(axis=1) | blown_before)
-    if not np.allclose(midway[moving], speed[ramp // 2]):  # the schedule the windows are judged on
-        raise RuntimeError(f"ramp_down: rows at {midway[moving]} km/h midway, the schedule at {speed[ramp // 2]:g}")
-    axle = np.array([task.scenarios[i].axle_load * task.base_params.Wpa for i in range(n)])
-    stride = max(1, int(round(s.ramp_down_stride_kmh / 3.6 / s.ramp_down_decel / dt)))
-    starts = np.arange(0, ramp + 1, stride)
-    failing = np.zeros((n, starts.size), dtype=bool)
-    judging = Progress(ctx.progress.label, ctx.progress.enabled)
-    for w, a in enumerate(starts):
-        part = slice(a, a + length)
-        # v3's flange rule is a majority over the window's seconds, which puts the end of sustained
-        # contact at the window's middle: it judges the window's length centred on the window's top
-        # speed, so that the value is where the contact stops (v2's any-contact rule: the window)
-        flange = slice(max(0, a - length // 2), a + length - length // 2) if s.flange_sustained_fraction else part
-        r = assess(history[:, :, part], contact[:, flange].mean(axis=1), blown_before | blown[:, part].any(axis=1),
-                   np.full(n, speed[part].mean() / 3.6), dt, axle, task.base_params.mb, s,
-                   flange_occupancy=flange_occupancy(contact[:, flange], dt, s.flange_window_s))  # fmt: skip
-        failing[:, w] = ~r.passed
-        judging.report(f"ramp down: judging window {w + 1}/{starts.size}", w + 1, starts.size - w - 1)
-    top_kmh = speed[starts]
-    end = hunting_end(failing, top_kmh, s.floor_kmh, s.ceiling_kmh)
-    hunting = onset_contact / last_second > s.flange_time_limit
-    out: dict[str, Any] = {}
-    start = 0
-    for col in cols.values():
-        idx = np.arange(start, start + len(col))
-        start += len(col)
-        crit = end.kmh[idx]
-        worst = int(np.argmin(crit))
-        at_least = "at least: the controller stops the hunting at the ceiling" if hunting[idx[worst]] else \
-            "at least: no hunting at the switch-on at the ceiling"  # fmt: skip
-        out[f"{col[0].conicity:g}"] = {
-            "kmh": round(float(crit[worst]), 1),
-            "bound": {"at_least": f"{at_least} {s.ceiling_kmh:g} km/h",
-                      "at_most": f"at most: the bogie still hunts in the window at the floor {s.floor_kmh:g} km/h",
-                      "ended": f"hunting ended: windows every {s.ramp_down_stride_kmh:g} km/h"}[str(end.bound[idx[worst]])],
-            "seeds": [c.seed for c in col],
-            "per_seed_kmh": [round(float(v), 1) for v in crit],
-            "spread_kmh": {"min": round(float(crit.min()), 1), "median": round(float(np.median(crit)), 1),
-                           "max": round(float(crit.max()), 1)},
-            "not_hunting_at_switch_on": [col[a].seed for a, i in enumerate(idx) if not hunting[i]],
-            # windows below the hunting's end that fail again (their highest speeds), by seed
-            "fails_below_kmh": {str(col[a].seed): [round(float(top_kmh[w]), 1) for w in np.nonzero(failing[i, end.first_pass[i]:])[0] + end.first_pass[i]]
-                                for a, i in enumerate(idx) if failing[i, end.first_pass[i]:].any()},
-        }  # fmt: skip
-    named = {"world": world_name} if world_name else {}
-    return {"decel_m_per_s2": s.ramp_down_decel, "onset_s": s.ramp_down_onset_s, "hold_s": s.transient_s,
-            "window_s": s.duration_s - s.transient_s, "window_every_kmh": s.ramp_down_stride_kmh,
-            "floor_kmh": s.floor_kmh, "ceiling_kmh": s.ceiling_kmh, **named, "by_conicity": out}  # fmt: skip
 
 
 # ---- the protocol ---------------------------------------------------------------------------------

@@ -6,7 +6,7 @@ values move when the step or the deceleration is halved.
         [--stride-kmh 2]
 
 ``--ideal`` runs the part ``ramp_down_ideal`` instead: the same ramp-down on a perfect track
-with noise-free sensors (``stability_protocol.IDEAL_WORLD``); ``--stride-kmh`` sets how often a
+with noise-free sensors (``ramp_down.IDEAL_WORLD``); ``--stride-kmh`` sets how often a
 judged window starts (the part's resolution; default 2 km/h).
 
 Every (step, deceleration) pair runs the part (``agents/stability_protocol.py``,

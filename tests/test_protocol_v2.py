@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from bogie_agents import stability_protocol as sp
+from bogie_agents.ramp_down import IDEAL_WORLD, hunting_end
 from bogie_agents.controllers import SkyhookController
 from bogie_env.envs.config import make_config
 from bogie_env.params import ConfigError
@@ -239,7 +240,7 @@ def test_hunting_end_takes_the_first_pass_after_the_hunting_the_ramp_started_wit
                         [0, 0, 1, 1, 0, 0],   # stopped during the hold, fails lower: at least the ceiling
                         [1, 1, 1, 1, 1, 1],   # never stops: at most the floor
                         [1, 0, 0, 0, 0, 0]], dtype=bool)  # fmt: skip
-    end = sp.hunting_end(failing, top, 40.0, 600.0)
+    end = hunting_end(failing, top, 40.0, 600.0)
     assert list(end.kmh) == [596.0, 600.0, 40.0, 598.0]
     assert list(end.bound) == ["ended", "at_least", "at_most", "ended"]
     assert list(end.first_pass) == [2, 0, 6, 1]
@@ -362,7 +363,7 @@ def test_ideal_world_zeroes_only_the_track_and_the_sensor_noise():
 
     v1 = make_config(variant="v1")
     default = sp.protocol_config(v1, tiny(), "sensors")
-    ideal = sp.protocol_config(v1, tiny(), "sensors", world=sp.IDEAL_WORLD)
+    ideal = sp.protocol_config(v1, tiny(), "sensors", world=IDEAL_WORLD)
     for key in default:
         if key not in ("track", "sensors", "observation"):
             assert ideal[key] == default[key], key
