@@ -77,8 +77,9 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
 
     The four RK4 stages are one loop over a single copy of the stage code, not four inlined
     copies: the compiled code is four times smaller, which cut the first compilation of the
-    drivers several-fold (docs/performance.md). The two middle stages share their time, so the
-    second reuses the first's track samples.
+    drivers several-fold (docs/performance.md). A stage at the time of the stage before it (the
+    two middle stages; a substep's first stage and the previous substep's last one, when their
+    times round alike) reuses that stage's track samples, which depend on the time only.
     """
     lanes = x.shape[1]
     h = dt / n_sub
@@ -91,6 +92,7 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
     for lane in range(lanes):
         for k in range(N_CHANNELS):
             out[lane, OUT_POWER, k] = 0.0
+    t_sampled = -1.0  # the stage time of the track samples in yt and trig (none yet: times are >= 0)
     for j in range(n_sub):
         t = j * h
         for stage in range(4):
@@ -107,11 +109,16 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
                         xs[i, lane] = x[i, lane] + step * scratch[K1 + stage - 1, i, lane]
                 ts = t + h if stage == 3 else t + 0.5 * h
             weight = weights[3 * j + (stage + 1) // 2]
+            # The track under the bogie depends on the stage time only: stage 2 is at stage 1's
+            # time, and a substep's first stage is at the last one's time whenever j h + h rounds
+            # to (j + 1) h (9 of 9 boundaries at 10 substeps per 10 ms): the same samples.
+            resample = ts != t_sampled
+            t_sampled = ts
             for lane in range(lanes):
                 for k in range(N_CHANNELS):
                     u[k, lane] = channel_output(xs[:, lane], k, weight, lag[lane], target[lane], channels)
                 generalised_forces(u[:, lane], q[:, lane])
-                if stage != 2:  # stage 2 is at stage 1's time: same track samples
+                if resample:
                     sample_track(track, s0[lane] + v0[lane] * ts + 0.5 * accel[lane] * ts * ts, p[P_L1, lane], yt[:, lane])
                     cos_sin = _cant_trig(yt[:, lane])
                     for k in range(6):
