@@ -230,16 +230,29 @@ def lag_weights(table, dt, n_sub, weights):
 
 
 @njit(cache=True, inline="always")
-def channel_output(x, k, weight, lag, target, table):
-    """Channel k's output where the lag has weight ``exp(-t / tau)``: lagged force minus lagged
-    damping times its velocity, saturated (a saturated damper keeps its sign, so it still only
-    dissipates)."""
+def channel_lags(k, weight, lag, target, table):
+    """Channel k's lagged (force, damping) where the lag has weight ``exp(-t / tau)``: they depend
+    on the time only, not on the state."""
     w = weight[k]
     force = lagged_force(lag[FORCE, k], target[FORCE, k], w, table[k, CH_DECAY_RATE], table[k, CH_RATE_LIMIT])
-    damping = lagged(lag[DAMPING, k], target[DAMPING, k], w)
+    return force, lagged(lag[DAMPING, k], target[DAMPING, k], w)
+
+
+@njit(cache=True, inline="always")
+def saturated_output(x, k, force, damping, table):
+    """Channel k's output from its lagged force and damping: force minus damping times its
+    velocity, saturated (a saturated damper keeps its sign, so it still only dissipates)."""
     value = force - damping * channel_velocity(x, k)
     limit = saturation(table, k)
     return min(max(value, -limit), limit)
+
+
+@njit(cache=True, inline="always")
+def channel_output(x, k, weight, lag, target, table):
+    """Channel k's output where the lag has weight ``exp(-t / tau)`` (:func:`channel_lags`,
+    :func:`saturated_output`)."""
+    force, damping = channel_lags(k, weight, lag, target, table)
+    return saturated_output(x, k, force, damping, table)
 
 
 @njit(cache=True, inline="always")

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .actuators import N_CHANNELS, channel_output, channel_velocity, generalised_forces
+from .actuators import N_CHANNELS, channel_lags, channel_output, channel_velocity, generalised_forces, saturated_output
 from .dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _cant_trig, _rhs_lanes, check_speed, rhs_single_kernel
 from .track import N_TRACK_SAMPLES, sample_track
 
@@ -40,18 +40,26 @@ STATUS_NONFINITE = 1
 
 # Scratch rows of _advance_lanes (a (N_SCRATCH, N_STATES, lanes) lane block of the caller):
 # RK4 stages, stage state, channel outputs, inputs, track samples, cos/sin of the cants, stage speed,
-# the frame reactions
-K1, K2, K3, K4, XS, U, Q, YT, TRIG, SPEED, FRAME = range(11)
-N_SCRATCH = 11
+# the frame reactions, the channels' lagged force (rows 0..) and damping (rows N_CHANNELS..)
+K1, K2, K3, K4, XS, U, Q, YT, TRIG, SPEED, FRAME, LAGGED = range(12)
+N_SCRATCH = 12
 # Rows of a bogie's channel outputs: force at the end of the interval, mean power over it.
 OUT_FORCE, OUT_POWER = 0, 1
-assert N_CHANNELS <= N_STATES and N_INPUTS <= N_STATES and N_TRACK_SAMPLES <= N_STATES and 6 <= N_STATES
+assert 2 * N_CHANNELS <= N_STATES and N_INPUTS <= N_STATES and N_TRACK_SAMPLES <= N_STATES and 6 <= N_STATES
 
 
 @njit(cache=True, inline="always")
 def _add_power(power, u, x, divisor):
     for k in range(N_CHANNELS):
         power[k] += u[k] * channel_velocity(x, k) / divisor
+
+
+@njit(cache=True, inline="always")
+def _same_row(weights, a, b):
+    for k in range(N_CHANNELS):
+        if weights[a, k] != weights[b, k]:
+            return False
+    return True
 
 
 @njit(cache=True, inline="always")
@@ -77,8 +85,10 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
 
     The four RK4 stages are one loop over a single copy of the stage code, not four inlined
     copies: the compiled code is four times smaller, which cut the first compilation of the
-    drivers several-fold (docs/performance.md). The two middle stages share their time, so the
-    second reuses the first's track samples.
+    drivers several-fold (docs/performance.md). A stage at the time of the stage before it (the
+    two middle stages; a substep's first stage and the previous substep's last one, when their
+    times round alike) reuses that stage's track samples, which depend on the time only, and a stage
+    whose lag weights equal the stage before's reuses the channels' lagged force and damping.
     """
     lanes = x.shape[1]
     h = dt / n_sub
@@ -91,6 +101,9 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
     for lane in range(lanes):
         for k in range(N_CHANNELS):
             out[lane, OUT_POWER, k] = 0.0
+    t_sampled = -1.0  # the stage time of the track samples in yt and trig (none yet: times are >= 0)
+    lagged = scratch[LAGGED]
+    w_lagged = -1  # the row of weights of the lagged forces and dampings in lagged (none yet)
     for j in range(n_sub):
         t = j * h
         for stage in range(4):
@@ -106,12 +119,24 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
                     for lane in range(lanes):
                         xs[i, lane] = x[i, lane] + step * scratch[K1 + stage - 1, i, lane]
                 ts = t + h if stage == 3 else t + 0.5 * h
-            weight = weights[3 * j + (stage + 1) // 2]
+            w_row = 3 * j + (stage + 1) // 2
+            weight = weights[w_row]
+            # The channels' lagged force and damping depend on the weights only: stage 2 has stage
+            # 1's row, and a substep's first stage the previous last one's values when they agree.
+            relag = w_lagged < 0 or (w_row != w_lagged and not _same_row(weights, w_row, w_lagged))
+            w_lagged = w_row
+            # The track under the bogie depends on the stage time only: stage 2 is at stage 1's
+            # time, and a substep's first stage is at the last one's time whenever j h + h rounds
+            # to (j + 1) h (9 of 9 boundaries at 10 substeps per 10 ms): the same samples.
+            resample = ts != t_sampled
+            t_sampled = ts
             for lane in range(lanes):
                 for k in range(N_CHANNELS):
-                    u[k, lane] = channel_output(xs[:, lane], k, weight, lag[lane], target[lane], channels)
+                    if relag:
+                        lagged[k, lane], lagged[N_CHANNELS + k, lane] = channel_lags(k, weight, lag[lane], target[lane], channels)
+                    u[k, lane] = saturated_output(xs[:, lane], k, lagged[k, lane], lagged[N_CHANNELS + k, lane], channels)
                 generalised_forces(u[:, lane], q[:, lane])
-                if stage != 2:  # stage 2 is at stage 1's time: same track samples
+                if resample:
                     sample_track(track, s0[lane] + v0[lane] * ts + 0.5 * accel[lane] * ts * ts, p[P_L1, lane], yt[:, lane])
                     cos_sin = _cant_trig(yt[:, lane])
                     for k in range(6):

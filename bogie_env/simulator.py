@@ -72,15 +72,23 @@ def default_num_threads() -> int:
 class LoopChooser:
     """Runs a batch on the calling thread or on the thread pool, whichever has been faster.
 
-    Below :data:`PARALLEL_MIN_ROWS` rows, or with one thread, always the calling thread. Above,
-    it times its calls and keeps the faster loop, trying the other one every
-    :attr:`PROBE_EVERY` calls: on an idle 2-core host the pool wins at large batches, on a busy
-    one its barriers can make it several times slower than the calling thread. Results do
-    not depend on the choice (a row's arithmetic is the same in both loops).
+    Below :data:`PARALLEL_MIN_ROWS` rows, or with one thread, always the calling thread. Above:
+
+    - the first call loads both loops' kernels (the calling thread's by its signature, without
+      running it) and runs on the pool, untimed: kernel loading and the pool's start are paid
+      there, by the call a user treats as the warm-up, not by the calls after it;
+    - the next :attr:`CALIBRATION_ROUNDS` pairs of calls alternate the calling thread and the
+      pool, each loop's figure the fastest of its calls (a busy host slows single calls, not
+      the loop);
+    - then it keeps the faster loop, trying the other one every :attr:`PROBE_EVERY` calls.
+
+    On an idle 2-core host the pool wins at large batches, on a busy one its barriers can make it
+    several times slower than the calling thread. Results do not depend on the choice (a row's
+    arithmetic is the same in both loops).
     """
 
     PROBE_EVERY = 100
-    WARM_UP_CALLS = 1  # untimed first calls of each loop (kernel loading, thread-pool start)
+    CALIBRATION_ROUNDS = 2  # pairs of timed calls (calling thread, pool) after the warm-up call
 
     def __init__(self, n_rows: int, num_threads: int) -> None:
         self.num_threads = int(num_threads)
@@ -89,29 +97,40 @@ class LoopChooser:
         self.loop_calls = [0, 0]
         self.calls = 0
 
+    @property
+    def calibrating(self) -> bool:
+        return self.calls <= 1 + 2 * self.CALIBRATION_ROUNDS
+
     def choose(self) -> int:
-        """0: the calling thread, 1: the pool."""
-        untried = [k for k in (0, 1) if math.isnan(self.seconds[k])]
-        if untried:
-            return untried[0]
+        """0: the calling thread, 1: the pool (``calls`` counts this call)."""
+        if self.calls <= 1:
+            return 1  # the warm-up call
+        if self.calibrating:
+            return self.calls % 2  # calls 2, 4, ...: the calling thread; 3, 5, ...: the pool
         best = 1 if self.seconds[1] < self.seconds[0] else 0
         return 1 - best if self.calls % self.PROBE_EVERY == 0 else best
 
     def record(self, loop: int, elapsed: float) -> None:
-        """A probe's time replaces the other loop's old estimate (probes are rare, and a stale
-        slow figure must not outlive a change of load); the loop in use is smoothed."""
+        """The warm-up call is not timed; while calibrating a loop keeps its fastest call; then a
+        probe's time replaces the other loop's old estimate (probes are rare, and a stale slow
+        figure must not outlive a change of load) and the loop in use is smoothed."""
         self.loop_calls[loop] += 1
-        if self.loop_calls[loop] <= self.WARM_UP_CALLS:
+        if self.calls <= 1:
             return
         old = self.seconds[loop]
+        if self.calibrating:
+            self.seconds[loop] = elapsed if math.isnan(old) else min(old, elapsed)
+            return
         in_use = not math.isnan(self.seconds[1 - loop]) and not math.isnan(old) and old <= self.seconds[1 - loop]
         self.seconds[loop] = 0.7 * old + 0.3 * elapsed if in_use else elapsed
 
     def run(self, serial, parallel, *args):
-        """``serial(*args)`` or ``parallel(*args)``; returns what it returns."""
+        """``serial(*args)`` or ``parallel(*args)`` (numba dispatchers); returns what it returns."""
         if not self.enabled:
             return serial(*args)
         self.calls += 1
+        if self.calls == 1:  # load the calling thread's kernel now; the pool's loads as it runs
+            serial.compile(tuple(numba.typeof(a) for a in args))
         loop = self.choose()
         if loop:
             numba.set_num_threads(self.num_threads)

@@ -1,4 +1,4 @@
-"""The thread-loop chooser: warm-up calls are not timed, and a probe's time replaces a stale one."""
+"""The thread-loop chooser: the warm-up call is not timed, a short calibration decides, and a probe's time replaces a stale one."""
 
 from bogie_env.simulator import PARALLEL_MIN_ROWS, LoopChooser
 
@@ -42,3 +42,24 @@ def test_a_probe_replaces_a_stale_slow_figure():
 def test_small_batches_stay_on_the_calling_thread():
     assert not LoopChooser(PARALLEL_MIN_ROWS - 1, 2).enabled
     assert not LoopChooser(4096, 1).enabled
+
+
+def test_the_choice_is_made_after_the_warm_up_and_two_pairs_of_calls():
+    chooser = LoopChooser(PARALLEL_MIN_ROWS, 2)
+    noisy = {2: 0.030}  # the calling thread's first timed call was slowed by the host
+
+    def seconds(loop, calls_so_far):
+        if loop == 1:
+            return 2.0 if calls_so_far == 0 else 0.008
+        return noisy.get(chooser.calls, 0.010)
+
+    chosen = _drive(chooser, seconds, 40)
+    assert chosen[:5] == [1, 0, 1, 0, 1]  # warm-up on the pool, then the loops alternate
+    assert chosen[5:] == [1] * 35  # the pool, from the sixth call on
+    assert chooser.seconds == [0.010, 0.008]  # the warm-up is not timed; the fastest call counts
+
+
+def test_the_calling_thread_wins_when_the_pool_is_slow_from_the_start():
+    chooser = LoopChooser(PARALLEL_MIN_ROWS, 2)
+    chosen = _drive(chooser, lambda loop, _: 0.030 if loop == 1 else 0.010, 60)
+    assert chosen[5:] == [0] * 55
