@@ -4,6 +4,7 @@
     python benchmarks/bench_distributed.py evaluate      # bogie evaluate (a controller table): the same
     python benchmarks/bench_distributed.py overhead      # Ray's cost per task and the work per study point
     python benchmarks/bench_distributed.py project --overhead-json OVERHEAD.json   # a 64-node cluster, simulated
+    python benchmarks/bench_distributed.py screening [--full pretrained]   # bogie evaluate --quick (and the full protocol), local
 
 Each backend runs as the user runs it: one ``bogie`` command in a fresh process (Ray's start-up
 included), timed from outside, with its output compared byte for byte against the local
@@ -137,9 +138,31 @@ def bench_project(args) -> dict:
     return out
 
 
+def _timed(command: list[str]) -> dict:
+    """Wall time of one command in a fresh process, with the load average before and after it."""
+    before = os.getloadavg()[0]
+    start = time.perf_counter()
+    subprocess.run(command, capture_output=True, text=True, check=True)
+    return {"command": " ".join(command[2:]), "seconds": round(time.perf_counter() - start, 1),
+            "load_before": round(before, 2), "load_after": round(os.getloadavg()[0], 2), "cores": os.cpu_count()}  # fmt: skip
+
+
+def bench_screening(args: argparse.Namespace) -> dict:
+    """``bogie evaluate --quick --policy passive --policy pretrained`` (the screening run of
+    protocol v3) and, with ``--full NAME``, the full protocol's default parts for one controller,
+    on the local backend, as a user runs them (start-up, policy loading, cached kernels)."""
+    bogie = [sys.executable, "-m", "bogie_agents"]
+    out = {"screening": _timed(bogie + ["evaluate", "--quick", "--policy", "passive", "--policy", "pretrained", "--json"])}
+    if args.full:
+        out["full"] = _timed(bogie + ["evaluate", "--policy", args.full, "--json"])
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="what", required=True)
+    sc = sub.add_parser("screening")
+    sc.add_argument("--full", default=None, help="also time the full protocol (default parts) for this controller")
     sub.add_parser("sensitivity")
     ev = sub.add_parser("evaluate")
     ev.add_argument("--policy", action="append", default=None)
@@ -156,7 +179,7 @@ def main() -> None:
     if args.what == "evaluate" and not args.policy:
         args.policy = ["passive", "skyhook", "lqr", "lqg"]
     result = {"sensitivity": bench_sensitivity, "evaluate": bench_evaluate, "overhead": bench_overhead,
-              "project": bench_project}[args.what](args)  # fmt: skip
+              "project": bench_project, "screening": bench_screening}[args.what](args)  # fmt: skip
     print(json.dumps(result, indent=2))
 
 

@@ -5,12 +5,26 @@ zero actions for at least ``--seconds`` after a warm-up, episodes reset in place
 v1 integrates with more substeps (accuracy criterion), adds the sensor model and the
 scenario's actuator health; the ratio is the cost of those.
 
+``--cpu`` instead reports env steps per CPU second on the calling thread, for comparing trees on
+a busy host: per tree and round a fresh process (``PYTHONPATH=tree``, ``BOGIE_NUM_THREADS=1``)
+steps v0 and v1 at N = 1 and 4096 and reports the best of ``--chunks`` chunks of
+``time.process_time``. The trees alternate within each round; the ratios between trees and
+between v0 and v1 in one run are the figures.
+
     python benchmarks/bench_v1.py
+    python benchmarks/bench_v1.py --cpu                                      # this tree, CPU time
+    python benchmarks/bench_v1.py --cpu --trees /tmp/before . --rounds 3     # trees interleaved
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
 
 from bench_route import make_task, steps_per_second  # the same warm-up and stepping loop
 
@@ -21,11 +35,74 @@ def rate(variant: str | None, n: int, seconds: float) -> tuple[float, int]:
     return steps_per_second(task, seconds), task.n_sub
 
 
+CASES = (("v0", 1, 2000), ("v1", 1, 1000), ("v0", 4096, 20), ("v1", 4096, 6))  # variant, N, steps per chunk
+
+
+def measure(chunks: int) -> dict:
+    import numpy as np
+
+    from bench_route import make_task
+
+    out = {}
+    for variant, n, steps in CASES:
+        task = make_task(None if variant == "v0" else variant, n)
+        actions = np.zeros((n, task.action_dim))
+        best = float("inf")
+        for _ in range(chunks):
+            t0 = time.process_time()
+            for _ in range(steps):
+                task.step(actions)
+                done = np.nonzero(task.done)[0]
+                if done.size:
+                    task.reset_rows(done)
+            best = min(best, time.process_time() - t0)
+        out[f"{variant}_N{n}"] = steps * n / best
+    return out
+
+
+def cpu_main(args: argparse.Namespace) -> None:
+    """--cpu: env steps per CPU second, this tree or ``--trees`` interleaved in fresh processes."""
+    if args.child or not args.trees:
+        print(json.dumps(measure(args.chunks)))
+        return
+    here = os.path.dirname(os.path.abspath(__file__))
+    runs: dict[str, list[dict]] = {t: [] for t in args.trees}
+    for r in range(args.rounds):
+        for tree in args.trees:
+            tree_abs = os.path.abspath(tree)
+            env = {**os.environ, "BOGIE_NUM_THREADS": "1", "PYTHONPATH": f"{here}:{tree_abs}"}
+            res = subprocess.run([sys.executable, __file__, "--cpu", "--child", "--chunks", str(args.chunks)], env=env,
+                                 capture_output=True, text=True, check=True)  # fmt: skip
+            fig = json.loads(res.stdout.strip().splitlines()[-1])
+            runs[tree].append(fig)
+            print(f"round {r} load {os.getloadavg()[0]:.1f} {tree}: " + ", ".join(f"{k} {v / 1e3:.0f} k" for k, v in fig.items()),
+                  flush=True)  # fmt: skip
+    print("medians (k env-steps per CPU second) and v0/v1:")
+    base = args.trees[0]
+    for tree in args.trees:
+        med = {k: statistics.median(f[k] for f in runs[tree]) for k in runs[tree][0]}
+        line = ", ".join(f"{k} {v / 1e3:.0f}" for k, v in med.items())
+        ratios = ", ".join(f"v0/v1 N{n} {med[f'v0_N{n}'] / med[f'v1_N{n}']:.2f}" for n in (1, 4096))
+        vs = ""
+        if tree != base:
+            bmed = {k: statistics.median(f[k] for f in runs[base]) for k in runs[base][0]}
+            vs = "; against the first tree: " + ", ".join(f"{k} {med[k] / bmed[k]:.3f}" for k in med)
+        print(f"{tree}: {line}; {ratios}{vs}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 4096])
+    parser.add_argument("--cpu", action="store_true", help="env steps per CPU second (see the docstring)")
+    parser.add_argument("--trees", nargs="*", default=None, help="--cpu: trees to compare, interleaved")
+    parser.add_argument("--rounds", type=int, default=3, help="--cpu: rounds")
+    parser.add_argument("--chunks", type=int, default=7, help="--cpu: chunks per case, the best kept")
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.cpu:
+        cpu_main(args)
+        return
     print(f"{'N':>6} {'v0 steps/s':>12} {'v1 steps/s':>12} {'v0/v1':>6}  substeps v0, v1")
     for n in args.sizes:
         v0, sub0 = rate(None, n, args.seconds)
