@@ -619,62 +619,21 @@ class HuntingTask:
             self.rngs[i] = np.random.default_rng(s)
 
     def reset_rows(self, rows: np.ndarray, options: Mapping[str, Any] | None = None) -> None:
-        """Start new episodes in ``rows`` (their RNGs must already be seeded)."""
-        options = dict(options or {})
-        route_options = ("route", "route_copy") if self.on_routes else ()
-        allowed = ("start_kmh", "end_kmh", "accel", "params") + route_options + scenarios.OPTION_NAMES
-        unknown = set(options) - set(allowed)
-        if unknown:
-            raise ConfigError(f"unknown reset option(s) {sorted(unknown)}; allowed: {', '.join(allowed)}")
-        if self.on_routes and ("end_kmh" in options or "accel" in options):
-            raise ConfigError("reset options 'end_kmh' and 'accel' are not allowed on routes: an episode runs its route at the "
-                              "constant speed 'start_kmh' (default drawn from the route's range, config 'route.speed_kmh')")  # fmt: skip
-        if not isinstance(options.get("params") or {}, Mapping):
-            raise ConfigError(f"reset option 'params' = {options['params']!r} must be a mapping of parameter names "
-                              "to scale factors, e.g. {'Csy': 0.5}")  # fmt: skip
-        sp = self.config["speed"]
-        alignment = self.track_input.alignment
+        """Start new episodes in ``rows`` (their RNGs must already be seeded). Each row draws, in
+        this order from its RNG: its speeds (and route slot), its scenario, its start state, its
+        place on the track and its sensors' biases and noise seed."""
+        options = self._checked_reset_options(options)
         rows = np.atleast_1d(rows)
         for i in rows:
             rng = self.rngs[i]
-            if self.on_routes:
-                slot = self._draw_slot(rng, options)
-                start = self._draw(rng, options.get("start_kmh"), 0.0, self.route_layout.speed_ranges_kmh[slot.route_index], "start_kmh")
-                end, accel = start, 0.0
-            else:
-                start = self._draw(rng, options.get("start_kmh"), sp["start_kmh"], sp["start_kmh_range"], "start_kmh")
-                end = self._draw(rng, options.get("end_kmh"), sp["end_kmh"], sp["end_kmh_range"], "end_kmh")
-                accel = self._draw(rng, options.get("accel"), sp["accel"], sp["accel_range"], "accel")
-            if not 0.0 <= accel <= MAX_ACCEL:
-                raise ConfigError(f"reset option 'accel' = {accel:g} is not allowed; allowed: [0, {MAX_ACCEL:g}] m/s^2 "
-                                  "(the speed ramps up from start_kmh to end_kmh, or stays constant)")  # fmt: skip
-            lo, hi = self.speed_limits()
-            if not (lo - 1e-9 <= start / KMH and end / KMH <= hi + 1e-9 and start <= end):
-                raise ConfigError(
-                    f"reset speeds start_kmh={start:g}, end_kmh={end:g} must satisfy "
-                    f"{lo * KMH:g} <= start_kmh <= end_kmh <= {hi * KMH:g} (the range the step size was chosen for; "
-                    "config 'speed.supported_kmh' widens it)"
-                )
+            start, end, accel, slot = self._draw_speeds(rng, options)
             scenario = scenarios.draw_scenario(self.config["randomize"], options, rng, list(self.channel_names))
             scenario.factors.update(options.get("params", {}) or {})
             model = scenarios.scenario_model(self.base_params, scenario, self.model)
             self.episode_params[i] = scenario.factors
             self.scenarios[i] = scenario
-            x = model.equilibrium(start / KMH)
-            sigma = self.config["initial_perturbation"]
-            offsets = rng.normal(0.0, sigma, 3)
-            yaws = rng.normal(0.0, sigma / (2 * self.base_params.L1), 3)
-            large = False
-            if self.config["large_perturbation_probability"] > 0 and rng.random() < self.config["large_perturbation_probability"]:
-                size = self.config["large_perturbation"]
-                offsets = rng.uniform(0.5, 1.0, 3) * size * rng.choice([-1.0, 1.0], 3)
-                large = True
-            x[[Y1, Y2, YB]] += offsets
-            x[[PSI1, PSI2, PSIB]] += yaws
-            if self.on_routes:
-                distance = slot.start_m
-            else:
-                distance = rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
+            x, offsets, yaws, large = self._draw_start_state(model, start, rng)
+            distance = slot.start_m if self.on_routes else self._draw_track_position(rng)
             self._episode_draws[i] = {
                 "start_kmh": float(start), "end_kmh": float(end), "accel_m_per_s2": float(accel),
                 "track_position_m": float(distance),
@@ -690,19 +649,89 @@ class HuntingTask:
                 self.sensor_bias[i] = draw_biases(self.config["sensors"], rng)
                 self.sensor_rng[i] = np.uint64(rng.integers(1, 2**63))
                 self.sensor_scale[i] = sensor_scales(model.coefficients[P_DELTA])
-            self.episode[i] = 0.0
-            self.episode[i, E_ONSET_KMH] = np.nan
-            self.episode[i, E_END_DISTANCE] = slot.end_m if self.on_routes else np.inf
-            self.route_slot[i] = self.route_layout.slots.index(slot) if self.on_routes else -1
-            self.flags[i] = 0
-            self.info[i] = 0.0
-            self.info[i, I_SPEED_KMH] = start
-            self.info[i, I_ONSET_KMH] = np.nan
+            self._clear_episode(i, start, slot)
         self.observe(rows)
         if self.sensors_enabled:
             sense_rows(rows.astype(np.int64), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
                        self.sensor_rng, self.sensor_table, True, OBS_BOUND)  # fmt: skip
         self._add_noise(rows)
+
+    def _checked_reset_options(self, options: Mapping[str, Any] | None) -> dict[str, Any]:
+        """``options`` as a dict, every key and the shape of ``params`` checked by name."""
+        options = dict(options or {})
+        route_options = ("route", "route_copy") if self.on_routes else ()
+        allowed = ("start_kmh", "end_kmh", "accel", "params") + route_options + scenarios.OPTION_NAMES
+        unknown = set(options) - set(allowed)
+        if unknown:
+            raise ConfigError(f"unknown reset option(s) {sorted(unknown)}; allowed: {', '.join(allowed)}")
+        if self.on_routes and ("end_kmh" in options or "accel" in options):
+            raise ConfigError("reset options 'end_kmh' and 'accel' are not allowed on routes: an episode runs its route at the "
+                              "constant speed 'start_kmh' (default drawn from the route's range, config 'route.speed_kmh')")  # fmt: skip
+        if not isinstance(options.get("params") or {}, Mapping):
+            raise ConfigError(f"reset option 'params' = {options['params']!r} must be a mapping of parameter names "
+                              "to scale factors, e.g. {'Csy': 0.5}")  # fmt: skip
+        return options
+
+    def _draw_speeds(self, rng: np.random.Generator, options: Mapping[str, Any]) -> tuple[float, float, float, Any]:
+        """A row's start and end speed (km/h), its acceleration (m/s^2) and, on routes, its route
+        slot (None on straight track), each given by ``options`` or drawn; checked against the
+        range the integration step was chosen for."""
+        sp = self.config["speed"]
+        slot = None
+        if self.on_routes:
+            slot = self._draw_slot(rng, options)
+            start = self._draw(rng, options.get("start_kmh"), 0.0, self.route_layout.speed_ranges_kmh[slot.route_index], "start_kmh")
+            end, accel = start, 0.0
+        else:
+            start = self._draw(rng, options.get("start_kmh"), sp["start_kmh"], sp["start_kmh_range"], "start_kmh")
+            end = self._draw(rng, options.get("end_kmh"), sp["end_kmh"], sp["end_kmh_range"], "end_kmh")
+            accel = self._draw(rng, options.get("accel"), sp["accel"], sp["accel_range"], "accel")
+        if not 0.0 <= accel <= MAX_ACCEL:
+            raise ConfigError(f"reset option 'accel' = {accel:g} is not allowed; allowed: [0, {MAX_ACCEL:g}] m/s^2 "
+                              "(the speed ramps up from start_kmh to end_kmh, or stays constant)")  # fmt: skip
+        lo, hi = self.speed_limits()
+        if not (lo - 1e-9 <= start / KMH and end / KMH <= hi + 1e-9 and start <= end):
+            raise ConfigError(
+                f"reset speeds start_kmh={start:g}, end_kmh={end:g} must satisfy "
+                f"{lo * KMH:g} <= start_kmh <= end_kmh <= {hi * KMH:g} (the range the step size was chosen for; "
+                "config 'speed.supported_kmh' widens it)"
+            )
+        return start, end, accel, slot
+
+    def _draw_start_state(self, model: BogieModel, start_kmh: float,
+                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:  # fmt: skip
+        """The equilibrium at the start speed plus the initial perturbation: small normal offsets
+        and yaws, or (with ``large_perturbation_probability``) offsets of 0.5-1 x
+        ``large_perturbation`` with random signs. Returns the state, the offsets, the yaws and
+        whether the large perturbation was drawn."""
+        x = model.equilibrium(start_kmh / KMH)
+        sigma = self.config["initial_perturbation"]
+        offsets = rng.normal(0.0, sigma, 3)
+        yaws = rng.normal(0.0, sigma / (2 * self.base_params.L1), 3)
+        large = False
+        if self.config["large_perturbation_probability"] > 0 and rng.random() < self.config["large_perturbation_probability"]:
+            size = self.config["large_perturbation"]
+            offsets = rng.uniform(0.5, 1.0, 3) * size * rng.choice([-1.0, 1.0], 3)
+            large = True
+        x[[Y1, Y2, YB]] += offsets
+        x[[PSI1, PSI2, PSIB]] += yaws
+        return x, offsets, yaws, large
+
+    def _draw_track_position(self, rng: np.random.Generator) -> float:
+        """Where on the straight track's alignment profile a row starts (m); 0 on a perfect track."""
+        alignment = self.track_input.alignment
+        return rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
+
+    def _clear_episode(self, i: int, start_kmh: float, slot: Any) -> None:
+        """Row ``i``'s episode bookkeeping, flags and info at the start of an episode."""
+        self.episode[i] = 0.0
+        self.episode[i, E_ONSET_KMH] = np.nan
+        self.episode[i, E_END_DISTANCE] = slot.end_m if self.on_routes else np.inf
+        self.route_slot[i] = self.route_layout.slots.index(slot) if self.on_routes else -1
+        self.flags[i] = 0
+        self.info[i] = 0.0
+        self.info[i, I_SPEED_KMH] = start_kmh
+        self.info[i, I_ONSET_KMH] = np.nan
 
     def ramp_rows(self, rows: np.ndarray, accel: float, end_kmh: float) -> None:
         """Change the speed ramp of running rows, e.g. ramp down (``accel`` < 0, m/s^2) to
