@@ -72,18 +72,19 @@ def flange_occupancy(contact: np.ndarray, dt: float, window_s: float) -> np.ndar
 def sustained_flange_contact(flange_time: np.ndarray, occupancy: np.ndarray | None, settings: Any) -> np.ndarray:
     """Which runs fail on flange contact. A run fails when its wheelsets touch the flange for more
     than ``flange_time_limit`` of the assessed time and (v3) the contact is sustained: it occurs
-    in at least ``flange_sustained_fraction`` of the assessed time's ``flange_window_s`` windows.
+    in at least ``settings.sustained_fraction`` of the assessed time's ``flange_window_s`` windows.
 
     Why: a hunting cycle that reaches the flange touches it on every cycle (2-10 Hz here, so in
-    every second), while a rough track forces contacts at its isolated defects, a few seconds
+    nearly every second), while a rough track forces contacts at its isolated defects, seconds
     apart (on the EN 13848-5 intervention track at 40-110 km/h the passive bogie touches in at
-    most 40 % of the seconds; hunting, in 80-100 %: docs/results.md, 'Hunting or forced
-    contact'). EN 14363 likewise judges running stability on a sustained oscillation. v2
-    (fraction 0) counts any contact; ``occupancy`` None: every window holds one."""
+    most a third of the seconds; hunting at 152 km/h, in 67-100 %:
+    docs/studies/hunting_or_forced_contact.md). EN 14363 likewise judges running stability on a
+    sustained oscillation. v2 (fraction 0) counts any contact; ``occupancy`` None: every window
+    holds one."""
     over = np.asarray(flange_time, dtype=float) > settings.flange_time_limit
-    if occupancy is None or not settings.flange_sustained_fraction:
+    if occupancy is None or not settings.sustained_fraction:
         return over
-    return over & (np.asarray(occupancy, dtype=float) >= settings.flange_sustained_fraction)
+    return over & (np.asarray(occupancy, dtype=float) >= settings.sustained_fraction)
 
 
 @dataclass
@@ -159,9 +160,9 @@ def criterion_text(settings: Any, axle_load_n: float, frame_mass_kg: float) -> d
                      f"relative to its limit, in {F0_RANGE_HZ[0]:g}-{F0_RANGE_HZ[1]:g} Hz",
         "flange_time_limit": settings.flange_time_limit,
         "flange_contact": "|wheelset lateral displacement relative to the rail| >= flange clearance, either wheelset",
-        "flange_sustained": (f"the contact time counts only if a contact occurs in at least {settings.flange_sustained_fraction:g} "
+        "flange_sustained": (f"the contact time counts only if a contact occurs in at least {settings.sustained_fraction:g} "
                              f"of the assessed time's {settings.flange_window_s:g} s windows (a hunting cycle touches on "
-                             "every cycle; a rough track at its isolated defects)") if settings.flange_sustained_fraction
+                             "every cycle; a rough track at its isolated defects)") if settings.sustained_fraction
                             else "every contact counts (protocol v2)",
         "blowup": "the env's blowup flag (|y - track| > 0.1 m or integrator failure) or a non-finite state or action",
         "sources": "EN 14363:2016 running stability (SumY: (10 kN + 2 Q0 / 3) / 2; frame: (12 - m+ / 5) / 2)",

@@ -83,6 +83,18 @@ def ramp_down_ideal_part(ctx: PartContext) -> dict[str, Any]:
     return {"ramp_down_ideal": ramp_down_runs(ctx, IDEAL_WORLD, IDEAL_WORLD_NAME)}
 
 
+def flange_span(start: int, length: int, sustained: bool) -> slice:
+    """The recorded samples on which a ramp-down window starting at ``start`` (``length``
+    samples) judges flange contact. v2's any-contact rule judges the window itself, whose first
+    sample is its top speed. v3's rule (``sustained``) is a majority over the seconds, which would
+    put the end of sustained contact at the window's middle; it judges the window's length
+    centred on the top speed instead (clipped at the ramp's start), so that the value is where
+    the sustained contact stops. The criterion's other quantities always judge the window."""
+    if not sustained:
+        return slice(start, start + length)
+    return slice(max(0, start - length // 2), start + length - length // 2)
+
+
 def ramp_down_runs(ctx: PartContext, world: Mapping[str, Any] | None = None,
                    world_name: str | None = None) -> dict[str, Any]:  # fmt: skip
     """Closed-loop nonlinear critical speed by the ramp-down method, per conicity of the grid
@@ -157,13 +169,11 @@ def ramp_down_runs(ctx: PartContext, world: Mapping[str, Any] | None = None,
     judging = Progress(ctx.progress.label, ctx.progress.enabled)
     for w, a in enumerate(starts):
         part = slice(a, a + length)
-        # v3's flange rule is a majority over the window's seconds, which puts the end of sustained
-        # contact at the window's middle: it judges the window's length centred on the window's top
-        # speed, so that the value is where the contact stops (v2's any-contact rule: the window)
-        flange = slice(max(0, a - length // 2), a + length - length // 2) if s.flange_sustained_fraction else part
+        flange = flange_span(a, length, bool(s.sustained_fraction))
+        occupancy = flange_occupancy(contact[:, flange], dt, s.flange_window_s) if s.sustained_fraction else None
         r = assess(history[:, :, part], contact[:, flange].mean(axis=1), blown_before | blown[:, part].any(axis=1),
                    np.full(n, speed[part].mean() / 3.6), dt, axle, task.base_params.mb, s,
-                   flange_occupancy=flange_occupancy(contact[:, flange], dt, s.flange_window_s))  # fmt: skip
+                   flange_occupancy=occupancy)  # fmt: skip
         failing[:, w] = ~r.passed
         judging.report(f"ramp down: judging window {w + 1}/{starts.size}", w + 1, starts.size - w - 1)
     top_kmh = speed[starts]

@@ -6,9 +6,9 @@ the flange-contact time's (below); everything else is shared. They judge a
 controller the way a running-stability test judges a vehicle: under the v1 world (sensor
 noise and bias, 10 ms loop delay, force-rate limits, an EN 13848-5 *alert* track), with EN
 14363's running-stability quantities. The definitions, limits and sources are in
-``docs/results.md``, section "Protocol v2 (v1 env)"; in short:
+``docs/results.md``, section "Protocol v3 (v1 env)"; in short:
 
-**Pass criterion** (:func:`assess`), on a fixed-speed run of ``duration_s`` seconds after the
+**Pass criterion** (:func:`bogie_agents.criterion.assess`), on a fixed-speed run of ``duration_s`` seconds after the
 first ``transient_s`` seconds:
 
 - no blow-up (the env's ``blowup`` flag, or a non-finite state or action);
@@ -137,7 +137,8 @@ class Settings:
     band_half_width_hz: float = 2.0
     flange_time_limit: float = 0.01
     #: v3: flange contact counts only when it is sustained: it occurs in at least this share of the
-    #: assessed time's windows of ``flange_window_s`` (None: the version's, FLANGE_SUSTAINED_FRACTION)
+    #: assessed time's windows of ``flange_window_s`` (None: the version's, FLANGE_SUSTAINED_FRACTION;
+    #: read it through :attr:`sustained_fraction`)
     flange_sustained_fraction: float | None = None
     flange_window_s: float = 1.0
     conicities: tuple[float, ...] = scenarios.CONICITY_GRID
@@ -166,8 +167,14 @@ class Settings:
         if self.version not in PROTOCOL_VERSIONS:
             raise ConfigError(f"protocol version = {self.version!r} is not known; known: "
                               f"{', '.join(map(str, PROTOCOL_VERSIONS))}")  # fmt: skip
+
+    @property
+    def sustained_fraction(self) -> float:
+        """The share of ``flange_window_s`` windows that makes flange contact count: the field, or
+        the version's (resolved on use, so ``replace(settings, version=...)`` keeps its meaning)."""
         if self.flange_sustained_fraction is None:
-            self.flange_sustained_fraction = FLANGE_SUSTAINED_FRACTION[self.version]
+            return FLANGE_SUSTAINED_FRACTION[self.version]
+        return self.flange_sustained_fraction
 
     def grid_kmh(self) -> np.ndarray:
         """The coarse grid: geometric from the floor, the ceiling always included."""
@@ -187,11 +194,15 @@ class Settings:
         ramp_down = {"ramp_down_decel": (self.ramp_down_decel, 0.05, 2.0, "m/s^2"),
                      "ramp_down_onset_s": (self.ramp_down_onset_s, 0.0, 60.0, "s"),
                      "ramp_down_stride_kmh": (self.ramp_down_stride_kmh, 0.1, 100.0, "km/h")}  # fmt: skip
-        flange = {"flange_sustained_fraction": (self.flange_sustained_fraction, 0.0, 1.0, "(a share of the windows)"),
-                  "flange_window_s": (self.flange_window_s, 0.05, self.duration_s - self.transient_s, "s (at most the assessed time)")}  # fmt: skip
-        if self.version == 2 and self.flange_sustained_fraction != 0.0:
+        flange = {}
+        if self.version == 2 and self.sustained_fraction != 0.0:
             raise ConfigError(f"protocol flange_sustained_fraction = {self.flange_sustained_fraction!r} is not allowed "
                               "with version 2 (v2 counts every flange contact: 0); use version 3")  # fmt: skip
+        if self.version == 3:  # v2 uses no window: its settings stay as they were
+            half = 0.5 * (self.duration_s - self.transient_s)  # a ramp-down window's first centred span
+            flange = {"flange_sustained_fraction": (self.sustained_fraction, 0.05, 1.0,
+                                                    "(a share of the windows; 0 is protocol v2: use version 2)"),
+                      "flange_window_s": (self.flange_window_s, 0.05, half, "s (at most half the assessed time)")}  # fmt: skip
         for name, (value, lo, hi, unit) in (ramp_down | flange).items():
             if not (math.isfinite(value) and lo <= value <= hi):
                 raise ConfigError(f"protocol {name} = {value!r} is not allowed; allowed: a number in [{lo:g}, {hi:g}] {unit}")
@@ -453,8 +464,8 @@ class Runner:
             axle[idx] = [task.scenarios[i].axle_load * task.base_params.Wpa for i in range(idx.size)]
         frame_mass = next(iter(loops.values()))[1].base_params.mb
         mean_offset = np.abs(offset / (steps - first)).max(axis=1)
-        return assess(history, contact.mean(axis=1), blowup, speeds_kmh / 3.6, dt, axle, frame_mass, s, mean_offset,
-                      flange_occupancy(contact, dt, s.flange_window_s))
+        occupancy = flange_occupancy(contact, dt, s.flange_window_s) if s.sustained_fraction else None
+        return assess(history, contact.mean(axis=1), blowup, speeds_kmh / 3.6, dt, axle, frame_mass, s, mean_offset, occupancy)
 
 
 # ---- the critical-speed search -------------------------------------------------------------------
@@ -544,9 +555,10 @@ def column_result(cases: list[Case], found: dict[str, Any], idx: np.ndarray, set
                                         "sum_y_rms_kn": round(float(at["sum_y_rms_n"][idx[worst]]) / 1e3, 2),
                                         "frame_accel_rms_m_per_s2": round(float(at["frame_accel_rms"][idx[worst]]), 2),
                                         "flange_time": round(float(at["flange_time"][idx[worst]]), 4),
-                                        "flange_occupancy": round(float(at["flange_occupancy"][idx[worst]]), 3),
                                         # a steady offset (e.g. from sensor bias) rather than an oscillation
                                         "mean_offset_over_clearance": round(float(at["mean_offset"][idx[worst]]), 3)}  # fmt: skip
+        if np.isfinite(at["flange_occupancy"][idx[worst]]):  # v3: the share of 1 s windows with a contact
+            out["worst_seed_at_failure"]["flange_occupancy"] = round(float(at["flange_occupancy"][idx[worst]]), 3)
     if cases[idx[worst]].scenario is not None:
         out["worst_scenario"] = cases[idx[worst]].scenario
     return out
@@ -755,7 +767,7 @@ def ramp_part(ctx: PartContext) -> dict[str, Any]:
 # ---- the protocol ---------------------------------------------------------------------------------
 def evaluate_policy_v2(source: Any, env_config: Mapping[str, Any] | None = None, settings: Settings | None = None,
                        parts: Iterable[str] = DEFAULT_PARTS, trusted: bool = False, label: str | None = None) -> dict:  # fmt: skip
-    """Protocol v2 for one controller. ``source``: a policy name or path (``load_policy``; a
+    """The protocol (v3, or v2 with ``Settings(version=2)``) for one controller. ``source``: a policy name or path (``load_policy``; a
     path needs ``trusted``), a factory ``env_config -> policy``, or a policy object (copied for
     each use); ``env_config``: a v1 env config (default: the ``v1`` variant)."""
     settings = settings or Settings()
@@ -765,7 +777,7 @@ def evaluate_policy_v2(source: Any, env_config: Mapping[str, Any] | None = None,
     parts = tuple(parts)
     unknown = [p for p in parts if p not in registry]
     if unknown:
-        raise ConfigError(f"protocol v2 parts {unknown} are not known; known: {', '.join(registry)}")
+        raise ConfigError(f"protocol parts {unknown} are not known; known: {', '.join(registry)}")
     factory = factory_for(source, trusted)
     probe = factory(env_config)
     observation_type = getattr(probe, "observation_type", "sensors")

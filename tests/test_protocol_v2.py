@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from bogie_agents import stability_protocol as sp
-from bogie_agents.ramp_down import IDEAL_WORLD, hunting_end
+from bogie_agents.ramp_down import IDEAL_WORLD, flange_span, hunting_end
 from bogie_agents.controllers import SkyhookController
 from bogie_env.envs.config import make_config
 from bogie_env.params import ConfigError
@@ -126,7 +126,7 @@ def test_flange_contact_fails_v3_only_when_sustained_and_v2_always():
     at least half of the 1 s windows (hunting) and passes it when it is isolated (a rough track);
     v2 fails both. Below the time limit neither fails."""
     v3, v2 = sp.Settings(), sp.Settings(version=2)
-    assert v3.flange_sustained_fraction == 0.5 and v2.flange_sustained_fraction == 0.0
+    assert v3.sustained_fraction == 0.5 and v2.sustained_fraction == 0.0
     time_, occupancy = np.array([0.02, 0.02, 0.005]), np.array([0.6, 0.3, 1.0])
     assert sp.sustained_flange_contact(time_, occupancy, v3).tolist() == [True, False, False]
     assert sp.sustained_flange_contact(time_, occupancy, v2).tolist() == [True, True, False]
@@ -145,8 +145,38 @@ def test_protocol_versions_are_checked_by_name():
         sp.Settings(version=2, flange_sustained_fraction=0.5).check()
     with pytest.raises(ConfigError, match="flange_window_s = 0.0 is not allowed"):
         sp.Settings(flange_window_s=0.0).check()
+    with pytest.raises(ConfigError, match="flange_window_s = 10.0 is not allowed; allowed: a number in"):
+        sp.Settings(flange_window_s=10.0).check()  # more than half the 15 s assessed: a ramp window's first span
     with pytest.raises(ConfigError, match="flange_sustained_fraction = 1.5 is not allowed"):
         sp.Settings(flange_sustained_fraction=1.5).check()
+    with pytest.raises(ConfigError, match="0 is protocol v2: use version 2"):
+        sp.Settings(flange_sustained_fraction=0.0).check()
+
+
+def test_the_version_sets_the_rule_when_it_is_used():
+    """The share follows the version on use: a copy of v2's settings made v3 counts sustained
+    contact only, and v2 keeps no window check (a short v2 run stays allowed, as before)."""
+    from dataclasses import replace
+
+    assert replace(sp.Settings(version=2), version=3).sustained_fraction == 0.5
+    assert replace(sp.Settings(), version=2).sustained_fraction == 0.0
+    sp.Settings(version=2, duration_s=1.5, transient_s=1.0).check()
+
+
+def test_ramp_down_judges_v3_flange_contact_centred_on_the_windows_top_speed():
+    """A synthetic ramp whose contact stops at sample 1000, windows of 300 samples: v2 judges a
+    window from its top speed down, so the first window free of contact starts at 1000; v3's
+    centred span puts the majority edge there too (the first passing start, 1000 - 1, is where
+    fewer than half the span's samples touch), not half a window (150 samples) later."""
+    contact = np.zeros(2000, dtype=bool)
+    contact[:1000] = True
+    length = 300
+    assert flange_span(500, length, False) == slice(500, 800)
+    assert flange_span(500, length, True) == slice(350, 650)
+    assert flange_span(100, length, True) == slice(0, 250)  # clipped at the ramp's start
+    first_v2 = next(a for a in range(2000 - length) if not contact[flange_span(a, length, False)].any())
+    first_v3 = next(a for a in range(2000 - length) if contact[flange_span(a, length, True)].mean() < 0.5)
+    assert first_v2 == 1000 and abs(first_v3 - 1000) <= 1, (first_v2, first_v3)
 
 
 ROUGH = dict(seed=3, seeds=2, floor_kmh=40.0, ceiling_kmh=200.0, grid_ratio=1.4, tol_kmh=4.0, duration_s=20.0, transient_s=5.0,
@@ -540,7 +570,7 @@ def test_cli_protocol_option_runs_v2_with_its_criterion(capsys, monkeypatch):
     assert cli_main(["evaluate", "--protocol", "2", "--policy", "passive", "--parts", "critical", "--json"]) == 0
     payload = json.loads(capsys.readouterr().out)
     assert payload["protocol_version"] == 2 and payload["policies"][0]["protocol_version"] == 2
-    assert made[-1].flange_sustained_fraction == 0.0
+    assert made[-1].sustained_fraction == 0.0
     assert payload["policies"][0]["criterion"]["flange_sustained"] == "every contact counts (protocol v2)"
     assert cli_main(["evaluate", "--env", "Bogie/Hunting-v0", "--protocol", "3", "--policy", "passive"]) == 2
     assert "--protocol 3 chooses the -v1 ids' protocol" in capsys.readouterr().err
