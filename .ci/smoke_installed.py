@@ -46,7 +46,7 @@ elif mode == "agents":
     import gymnasium as gym
     import numpy as np
 
-    from bogie_agents.policies import load_policy
+    from bogie_agents.controllers.policies import load_policy
 
     env = gym.make("Bogie/Hunting-v0")
     policy = load_policy("pretrained", env.unwrapped.config)

@@ -41,7 +41,7 @@ AGENTS_EXTRA = ("stable_baselines3", "torch", "tensorboard", "tqdm", "rich")
 @argument("--config", default=None, help="agent config YAML (default: configs/agents/ALGO.yaml)")
 @argument("--algo", choices=("ppo", "sac", "td3"), default=None)
 def cmd_train(args: argparse.Namespace) -> int:
-    from .train import train_from_cli
+    from .training.train import train_from_cli
 
     summary = train_from_cli(args.algo, args.config, args.out, args.timesteps, args.seed, not args.no_resume,
                              not args.no_progress)  # fmt: skip
@@ -63,7 +63,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 @argument("--config", default=None, help="agent config YAML to start from (default: configs/agents/ALGO.yaml)")
 @argument("--algo", choices=("ppo", "sac", "td3"), default="ppo")
 def cmd_tune(args: argparse.Namespace) -> int:
-    from .tune import tune_agent
+    from .training.tune import tune_agent
 
     summary = tune_agent(args.algo, args.out, args.trials, args.timesteps, args.trial_time_s, args.episodes, args.config,
                          args.write_config, args.address, args.concurrent, args.seed, args.n_envs)  # fmt: skip
@@ -139,7 +139,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.quick:
         payload = {"screening": results[0]["screening"], **payload}
     if protocol_version >= 2:
-        from .scoreboard import with_scores
+        from .evaluation.scoreboard import with_scores
 
         payload = with_scores(payload)  # the score against the passive row of this run (none without one)
     if args.out:
@@ -149,8 +149,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     elif protocol_version == 1:
         _print_v1(results)
     else:
-        from .results import v2_summary
-        from .scoreboard import score_text
+        from .evaluation.results import v2_summary
+        from .evaluation.scoreboard import score_text
 
         for r in payload["policies"]:
             print(v2_summary(r))
@@ -162,7 +162,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def protocol_settings(args: argparse.Namespace):
     """The -v1 ids' protocol settings of ``--protocol``, ``--seed`` and (bogie evaluate) ``--quick``."""
-    from .stability_protocol import PROTOCOL_VERSION, Settings, screening_settings
+    from .evaluation.stability_protocol import PROTOCOL_VERSION, Settings, screening_settings
 
     make = screening_settings if getattr(args, "quick", False) else Settings
     return make(version=args.protocol or PROTOCOL_VERSION, seed=args.seed, progress=True)
@@ -204,16 +204,16 @@ def _default_v2_parts() -> str:
 
 
 def _evaluate_v2(args: argparse.Namespace, env_config: dict) -> list[dict]:
-    """Protocol v2 (agents/stability_protocol.py) for every --policy."""
-    from .policies import load_policy
-    from .stability_protocol import available_parts, evaluate_policy_v2
+    """Protocol v2 (agents/evaluation/stability_protocol.py) for every --policy."""
+    from .controllers.policies import load_policy
+    from .evaluation.stability_protocol import available_parts, evaluate_policy_v2
 
     parts = _requested_parts(args, set(available_parts()), "critical" if args.quick else _default_v2_parts())
     for spec in args.policy:
         load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any run
     settings = protocol_settings(args)
     if args.backend == "ray":  # one task per controller and part (docs/distributed.md)
-        from .evaluation_tasks import evaluate_many_v2
+        from .evaluation.evaluation_tasks import evaluate_many_v2
 
         store = Path(f"{args.out}.chunks") if args.out else None
         return evaluate_many_v2(args.policy, env_config, settings, parts, args.address, args.workers, store_dir=store,
@@ -222,9 +222,9 @@ def _evaluate_v2(args: argparse.Namespace, env_config: dict) -> list[dict]:
 
 
 def _evaluate_v1(args: argparse.Namespace, env_config: dict) -> list[dict]:
-    """Protocol v1 (agents/evaluate.py), unchanged, for the -v0 ids."""
-    from .evaluate import ProtocolSettings, evaluate_policy
-    from .policies import load_policy
+    """Protocol v1 (agents/evaluation/evaluate.py), unchanged, for the -v0 ids."""
+    from .evaluation.evaluate import ProtocolSettings, evaluate_policy
+    from .controllers.policies import load_policy
 
     requested = _requested_parts(args, {"critical", "ramp", "effort", "robustness", "margins"}, "critical,ramp,effort,robustness")
     parts = tuple(p for p in requested if p != "margins")  # margins: bogie margins' table, beside the protocol
@@ -232,7 +232,7 @@ def _evaluate_v1(args: argparse.Namespace, env_config: dict) -> list[dict]:
     if not parts:
         results = [{} for _ in args.policy]
     elif args.backend == "ray":  # one task per controller and part (docs/distributed.md)
-        from .evaluation_tasks import evaluate_many
+        from .evaluation.evaluation_tasks import evaluate_many
 
         for spec in args.policy:
             load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any task starts
@@ -245,7 +245,7 @@ def _evaluate_v1(args: argparse.Namespace, env_config: dict) -> list[dict]:
     for spec, result in zip(args.policy, results):
         result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
         if "margins" in requested:
-            from .margins import margins_table
+            from .design.margins import margins_table
 
             result["margins"] = margins_table(load_policy(spec, env_config, args.trust_policy), env_config)
     return results
@@ -255,7 +255,7 @@ def _print_v1(results: list[dict]) -> None:
     for r in results:
         line = f"{r['policy']:>12s}:"
         if "closed_loop_critical_speed_kmh" in r:
-            from .results import speed_text
+            from .evaluation.results import speed_text
 
             line += (f" closed-loop critical speed {speed_text(r)} km/h "
                      f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']}; "
@@ -293,10 +293,10 @@ def cmd_margins(args: argparse.Namespace) -> int:
         print("bogie: error: python-control is not installed; it comes with the margins extra: "
               "pip install 'bogie-env[margins]'", file=sys.stderr)  # fmt: skip
         return 2
-    from .margins import format_table, margins_table
-    from .policies import load_policy
+    from .design.margins import format_table, margins_table
+    from .controllers.policies import load_policy
 
-    from .margins import check_conicity
+    from .design.margins import check_conicity
 
     env_config = env_config_from_args(args, _env_variant(args.env))
     try:
@@ -350,10 +350,10 @@ def cmd_margins(args: argparse.Namespace) -> int:
 @backend_options
 @bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
-    from .results import run, run_v2
+    from .evaluation.results import run, run_v2
 
     if args.render_only:
-        from .scoreboard import render
+        from .evaluation.scoreboard import render
 
         if args.env.rsplit("-", 1)[-1] == "v0":
             raise ConfigError("--render-only renders protocol v2's results (the -v1 ids)")

@@ -23,7 +23,7 @@ import time
 import gymnasium as gym
 import numpy as np
 
-from bogie_agents.vec_env import BogieHuntingSB3VecEnv
+from bogie_agents.training.vec_env import BogieHuntingSB3VecEnv
 import bogie_env  # noqa: F401
 from bogie_env.envs.hunting_env import BogieHuntingEnv
 from bogie_env.envs.vector import BogieHuntingVectorEnv

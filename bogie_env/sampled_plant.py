@@ -3,10 +3,10 @@ zero-order hold of one action per control interval, each channel's command delay
 sensors' anti-alias filters, as one discrete state space at ``dt``.
 
 One assembly (:func:`sampled_loop_plant`) serves every linear design and analysis of the
-sampled loop: the margins' plant (``bogie_agents.margins.plant_model``, the 20-state Jacobian),
-the robust design's plant (``bogie_agents.robust.DesignModel.plant``, the 16 lateral states of
+sampled loop: the margins' plant (``bogie_agents.design.margins.plant_model``, the 20-state Jacobian),
+the robust design's plant (``bogie_agents.controllers.robust.DesignModel.plant``, the 16 lateral states of
 :func:`bogie_env.stability.linearize`) and the LQG's design model
-(``bogie_agents.controllers.LQGController.sampled_model``). :class:`PlantModel` holds its
+(``bogie_agents.controllers.lqr.LQGController.sampled_model``). :class:`PlantModel` holds its
 matrices with the continuous part, so that extra whole-step (:meth:`PlantModel.with_extra_delay`)
 and fractional (:meth:`PlantModel.with_delay_s`) command delays apply to any of them.
 

@@ -19,8 +19,8 @@ import argparse
 
 import numpy as np
 
-from bogie_agents.curving_evaluation import constant_curve_run
-from bogie_agents.policies import load_policy
+from bogie_agents.evaluation.curving_evaluation import constant_curve_run
+from bogie_agents.controllers.policies import load_policy
 from bogie_env.actuators import force_matrix
 from bogie_env.analysis.curving import ACCELERATIONS, POSITIONS, _newton, curve_samples, signed_curve
 from bogie_env.dynamics import N_STATES, jacobian_kernel, rhs_single_kernel, state_index

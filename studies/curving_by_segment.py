@@ -3,7 +3,7 @@
     python studies/curving_by_segment.py [--policy passive --policy robust_damping ...]
         [--seeds 8] [--perfect-track]
 
-The curving evaluation's conditions (``bogie_agents.curving_evaluation.route_config``: the v1
+The curving evaluation's conditions (``bogie_agents.evaluation.curving_evaluation.route_config``: the v1
 world on the shipped routes at their design speeds, nominal bogie, seeds 0..N-1, route copy =
 seed mod copies, every row to its route's end), split by the segment under the bogie frame:
 flange-contact time (either wheelset, mean over seeds, s) and the mean wear number (Tγ summed
@@ -18,8 +18,8 @@ import argparse
 
 import numpy as np
 
-from bogie_agents.curving_evaluation import route_config
-from bogie_agents.policies import load_policy
+from bogie_agents.evaluation.curving_evaluation import route_config
+from bogie_agents.controllers.policies import load_policy
 from bogie_env.envs.config import make_config
 from bogie_env.envs.task import HuntingTask
 from bogie_env.route import available_routes, load_route

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from bogie_agents.curving_evaluation import CurvingSettings, curving_columns, route_config
+from bogie_agents.evaluation.curving_evaluation import CurvingSettings, curving_columns, route_config
 from bogie_env.envs.config import make_config
 from bogie_env.envs.task import HuntingTask
 from bogie_env.route import available_routes

@@ -4,7 +4,7 @@ integration steps: whether a step changes the physics or only which seeds fail.
     python studies/fixed_speed_failure_rate.py [--policy robust_steering] \
         [--n-sub 10,40] [--conicity 0.025] [--speeds 460:600:20] [--seeds 40]
 
-Each (seed, speed) row is one protocol v2 run (``agents/stability_protocol.py``: 20 s at a fixed
+Each (seed, speed) row is one protocol v2 run (``agents/evaluation/stability_protocol.py``: 20 s at a fixed
 speed, the first 5 s discarded, the 12 mm start, the controller told the conicity class),
 seeds 0 to ``--seeds`` - 1, all rows of a step in one batch. Where two attractors coexist (the
 bogie settles, or falls into a hunting cycle), the column's lowest seed is a sample minimum
@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from bogie_env.envs.config import make_config
-from bogie_agents.stability_protocol import (NOMINAL_OPTIONS, Case, PartContext, Progress, Runner, Settings,
+from bogie_agents.evaluation.stability_protocol import (NOMINAL_OPTIONS, Case, PartContext, Progress, Runner, Settings,
                                              factory_for)  # fmt: skip
 from lambda_low_speed_diagnosis import parse_speeds  # this folder: the script's own directory is on sys.path
 

@@ -20,7 +20,7 @@ import json
 
 import numpy as np
 
-from bogie_agents import stability_protocol as sp
+from bogie_agents.evaluation import stability_protocol as sp
 from bogie_env.envs.config import make_config
 
 

@@ -1,7 +1,7 @@
 """robust_damping at conicity 0.1 with an edited command lead, or with edited actuator limits:
 the protocol-v2 column and the smallest command factor the design model tolerates near the lead.
 
-    python studies/lambda_lead.py [--gains agents/robust_gains.json] \
+    python studies/lambda_lead.py [--gains agents/controllers/robust_gains.json] \
         [--lead-s 0.01 --lead-lowpass-hz 4 --lead-speeds 240,270] [--env-override JSON] [--columns conicity:0.1]
 
 - ``--lead-s`` / ``--lead-lowpass-hz`` / ``--lead-speeds``: replace the table's lead (0: none) on a
@@ -29,8 +29,8 @@ import time
 import numpy as np
 
 from bogie_env.envs.config import make_config, merge_config
-from bogie_agents.robust import GAINS_FILE, DesignModel, RobustDampingController, closed_loop, filter_bank, load_gains
-from bogie_agents.stability_protocol import Settings, block_values, columns_by_conicity, evaluate_policy_v2
+from bogie_agents.controllers.robust import GAINS_FILE, DesignModel, RobustDampingController, closed_loop, filter_bank, load_gains
+from bogie_agents.evaluation.stability_protocol import Settings, block_values, columns_by_conicity, evaluate_policy_v2
 
 
 def largest_factor(controller: RobustDampingController, config: dict, conicity: float, speeds) -> float:

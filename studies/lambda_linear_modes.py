@@ -1,6 +1,6 @@
 """The least-damped closed-loop modes of controllers at one conicity over a speed range, and each
 loop's response to a sinusoidal track alignment (the wheelsets' displacement relative to the rail
-per unit alignment), from the sampled linear loop of :mod:`bogie_agents.margins` (bogie, actuator
+per unit alignment), from the sampled linear loop of :mod:`bogie_agents.design.margins` (bogie, actuator
 lags, loop delay, sensor filters, the controller's own linear model).
 
     python studies/lambda_linear_modes.py --policy passive --policy robust_damping \
@@ -33,8 +33,8 @@ from bogie_env.dynamics import N_INPUTS, N_STATES, N_TRACK, state_index
 from bogie_env.envs.config import make_config
 from bogie_env.stability import KMH
 from bogie_env.sampled_plant import discretize
-from bogie_agents.margins import linear_loop, plant_bogie
-from bogie_agents.stability_protocol import Settings, factory_for, policy_config, told_conicity
+from bogie_agents.design.margins import linear_loop, plant_bogie
+from bogie_agents.evaluation.stability_protocol import Settings, factory_for, policy_config, told_conicity
 
 SHAPE_STATES = ("y1", "y2", "yb", "psi1", "psi2", "psib")
 
@@ -43,7 +43,7 @@ def build(name: str, env_config: dict, conicity: float, gains: str | None):
     """The controller as protocol v2 builds it, told the conicity class."""
     told = told_conicity(conicity, Settings().conicities)
     if gains is not None:
-        from bogie_agents.robust import RobustDampingController
+        from bogie_agents.controllers.robust import RobustDampingController
 
         return RobustDampingController(policy_config(env_config, "sensors", told), gains=gains)
     probe = factory_for(name)(env_config)

@@ -5,7 +5,7 @@ noise) and on the alert track with the start shifted along it.
     python studies/lambda_low_speed_diagnosis.py --policy pretrained --seeds 3,9,0 \
         --speeds 130:260:10 --modes alert,perfect,shift200 [--conicity 0.1] [--gains FILE] [--json OUT]
 
-Each row is one protocol v2 run (``agents/stability_protocol.py``: 20 s at a fixed speed, the first
+Each row is one protocol v2 run (``agents/evaluation/stability_protocol.py``: 20 s at a fixed speed, the first
 5 s discarded, 12 mm initial perturbation, the controller told the conicity class) judged by the
 protocol's own criterion (:func:`assess`); the script adds what the criterion does not report:
 the dominant frequency and the growth of the wheelsets' displacement relative to the rail (the
@@ -32,7 +32,7 @@ from bogie_env.analysis.en14363 import running_signals_rows
 from bogie_env.envs.config import bogie_params, make_config, merge_config
 from bogie_env.envs.task import HuntingTask
 from bogie_env.simulator import M_DISTANCE, _sample_rows
-from bogie_agents.stability_protocol import (NOMINAL_OPTIONS, Settings, assess, factory_for, policy_config,
+from bogie_agents.evaluation.stability_protocol import (NOMINAL_OPTIONS, Settings, assess, factory_for, policy_config,
                                              protocol_config, told_conicity)  # fmt: skip
 
 
@@ -46,10 +46,10 @@ def parse_speeds(text: str) -> list[float]:
 
 def make_policy(name: str, env_config: dict, conicity: float, gains: str | None) -> tuple[object, str]:
     """The controller as protocol v2 builds it (told the conicity class) and its observation
-    type; ``gains``: a gain table for robust_damping (e.g. an edited copy of agents/robust_gains.json)."""
+    type; ``gains``: a gain table for robust_damping (e.g. an edited copy of agents/controllers/robust_gains.json)."""
     s = Settings()
     if gains is not None:
-        from bogie_agents.robust import RobustDampingController
+        from bogie_agents.controllers.robust import RobustDampingController
 
         cfg = policy_config(env_config, "sensors", told_conicity(conicity, s.conicities))
         return RobustDampingController(cfg, gains=gains), "sensors"

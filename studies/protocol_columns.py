@@ -26,7 +26,7 @@ import sys
 import time
 
 from bogie_env.envs.config import make_config
-from bogie_agents.stability_protocol import Settings, block_values, columns_by_conicity, evaluate_policy_v2
+from bogie_agents.evaluation.stability_protocol import Settings, block_values, columns_by_conicity, evaluate_policy_v2
 
 
 def main() -> None:

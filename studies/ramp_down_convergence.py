@@ -9,7 +9,7 @@ values move when the step or the deceleration is halved.
 with noise-free sensors (``ramp_down.IDEAL_WORLD``); ``--stride-kmh`` sets how often a
 judged window starts (the part's resolution; default 2 km/h).
 
-Every (step, deceleration) pair runs the part (``agents/stability_protocol.py``,
+Every (step, deceleration) pair runs the part (``agents/evaluation/stability_protocol.py``,
 :func:`ramp_down_part`) on seeds ``--seed`` to ``--seed`` + ``--seeds`` - 1 (the nominal column
 always runs beside the chosen conicities); v1's step is 10 substeps, the part's
 deceleration 0.25 m/s^2. Prints JSON: per policy and pair, each conicity's value (lowest seed)
@@ -25,7 +25,7 @@ import time
 
 from bogie_env.envs.config import make_config
 from bogie_env.params import ConfigError
-from bogie_agents.stability_protocol import Settings, evaluate_policy_v2
+from bogie_agents.evaluation.stability_protocol import Settings, evaluate_policy_v2
 
 
 def floats(parser: argparse.ArgumentParser, name: str, text: str) -> list[float]:

@@ -5,7 +5,7 @@
    frequency (``bogie_env.integrate.eigenvalue_errors``), for nominal and worn wheels.
 2. Measured: the onset speed of hunting on v1's ramp (100 -> 600 km/h at 1.5 m/s^2, alert-level
    track, one step of loop delay, rate limits) for the passive bogie and the gain-scheduled LQR
-   (``bogie_agents.controllers.LQRController``, full-state observation, designed for the
+   (``bogie_agents.controllers.lqr.LQRController``, full-state observation, designed for the
    episode's conicity without regard to the delay), with the v0 step (stability only), the v1
    step and half the v1 step. Same seeds, same track positions and noise in every run: the
    differences are the integration's.
@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from bogie_agents.controllers import LQRController
+from bogie_agents.controllers.lqr import LQRController
 from bogie_env.dynamics import BogieModel
 from bogie_env.envs.config import make_config
 from bogie_env.envs.task import HuntingTask

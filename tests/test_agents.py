@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import yaml
 
-from bogie_agents.controllers import LQGController, LQRController, PassiveController, SkyhookController
-from bogie_agents.evaluate import LimitCycleStarts, ProtocolSettings, closed_loop_critical_speed, evaluate_policy
-from bogie_agents.policies import PRETRAINED_DIR, load_policy, load_sb3_policy
-from bogie_agents.train import load_run_config, train
+from bogie_agents.controllers.lqr import LQGController, LQRController, PassiveController, SkyhookController
+from bogie_agents.evaluation.evaluate import LimitCycleStarts, ProtocolSettings, closed_loop_critical_speed, evaluate_policy
+from bogie_agents.controllers.policies import PRETRAINED_DIR, load_policy, load_sb3_policy
+from bogie_agents.training.train import load_run_config, train
 from bogie_agents.cli import main as cli_main
 from bogie_env.analysis.bifurcation import nonlinear_critical_speed
 from bogie_env.envs.config import make_config, merge_config
@@ -255,7 +255,7 @@ def test_cli_evaluate_bad_input(capsys, argv, message):
 
 
 def test_results_writes_json_table_and_plots_and_resumes(tmp_path, monkeypatch, env_config):
-    import bogie_agents.results as results
+    import bogie_agents.evaluation.results as results
 
     payload = results.run(["passive", "skyhook"], env_config, tmp_path, settings=FAST, parts=("ramp", "effort"))
     names = [r["policy"] for r in payload["policies"]]

@@ -1,4 +1,4 @@
-"""The curving assist (``bogie_agents.curving_assist``) against the classic steady-curving result
+"""The curving assist (``bogie_agents.controllers.curving_assist``) against the classic steady-curving result
 and on straight track with sensor biases.
 
 Oracle: a wheelset whose primary yaw springs' moment at the radial position, ``k_psi L1 kappa``
@@ -15,10 +15,10 @@ import copy
 import numpy as np
 import pytest
 
-from bogie_agents.curving_assist import CurvingAssist, SteeringController
-from bogie_agents.curving_evaluation import constant_curve_run
-from bogie_agents.policies import load_policy
-from bogie_agents.robust import RobustDampingController
+from bogie_agents.controllers.curving_assist import CurvingAssist, SteeringController
+from bogie_agents.evaluation.curving_evaluation import constant_curve_run
+from bogie_agents.controllers.policies import load_policy
+from bogie_agents.controllers.robust import RobustDampingController
 from bogie_env.dynamics import state_index
 from bogie_env.envs.config import bogie_params, make_config
 from bogie_env.envs.task import SENSOR_WHEELSET1_YAW, SENSOR_WHEELSET2_YAW, SENSORS, HuntingTask

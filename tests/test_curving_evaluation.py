@@ -1,4 +1,4 @@
-"""The curving columns (``bogie_agents.curving_evaluation``): the route runs against the
+"""The curving columns (``bogie_agents.evaluation.curving_evaluation``): the route runs against the
 steady-state solver, and the columns' bookkeeping."""
 
 import math
@@ -7,8 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from bogie_agents import curving_evaluation
-from bogie_agents.curving_evaluation import CurvingSettings, _sliding, curving_columns, steady_state_check, sum_y_limits_n
+from bogie_agents.evaluation import curving_evaluation
+from bogie_agents.evaluation.curving_evaluation import CurvingSettings, _sliding, curving_columns, steady_state_check, sum_y_limits_n
 
 
 def test_route_run_on_a_constant_curve_reaches_the_steady_state_of_bogie_curving():
@@ -50,7 +50,7 @@ def test_passive_columns_have_no_excess_over_themselves(monkeypatch):
 def test_protocol_v2_part_curving_runs_every_route_with_the_protocol_seed_and_label(monkeypatch):
     """``bogie evaluate --parts curving``: the part hands the controller (built for the routes),
     the protocol's seed and every shipped route to the curving columns, under the protocol's label."""
-    from bogie_agents.stability_protocol import Settings, evaluate_policy_v2
+    from bogie_agents.evaluation.stability_protocol import Settings, evaluate_policy_v2
     from bogie_env.route import available_routes
 
     runs = []

@@ -156,8 +156,8 @@ def test_ray_full_study_equals_local_bitwise(ray_cluster, paper_params, tmp_path
 
 # ---- bogie tune --------------------------------------------------------------------------------
 def test_tune_trial_config_keeps_the_agent_config_and_bounds_the_budget(tmp_path):
-    from bogie_agents.train import load_run_config
-    from bogie_agents.tune import SEARCH_SPACES, task_config, task_id, trial_config, write_best_config
+    from bogie_agents.training.train import load_run_config
+    from bogie_agents.training.tune import SEARCH_SPACES, task_config, task_id, trial_config, write_best_config
 
     assert task_id() == "Bogie/Hunting-v1"  # the newest registered version
     base = load_run_config(None, "ppo")
@@ -178,8 +178,8 @@ def test_tune_trial_config_keeps_the_agent_config_and_bounds_the_budget(tmp_path
 
 
 def test_tune_trial_with_fewer_envs_fits_the_minibatch_in_one_rollout():
-    from bogie_agents.train import load_run_config, validate_run_config
-    from bogie_agents.tune import trial_config
+    from bogie_agents.training.train import load_run_config, validate_run_config
+    from bogie_agents.training.tune import trial_config
 
     base = load_run_config(None, "ppo")
     base["n_envs"] = 8  # bogie tune --n-envs 8: a rollout of 8 x n_steps is smaller than the shipped batch
@@ -189,7 +189,7 @@ def test_tune_trial_with_fewer_envs_fits_the_minibatch_in_one_rollout():
 
 
 def test_tune_rejects_bad_budgets():
-    from bogie_agents.tune import check_budget
+    from bogie_agents.training.tune import check_budget
 
     with pytest.raises(ConfigError, match="--trials = 0"):
         check_budget(0, 1000, None, 2)
@@ -199,8 +199,8 @@ def test_tune_rejects_bad_budgets():
 
 @pytest.mark.slow
 def test_tune_two_trials_write_a_trainable_config_and_restore(ray_cluster, tmp_path):
-    from bogie_agents.train import load_run_config
-    from bogie_agents.tune import tune_agent
+    from bogie_agents.training.train import load_run_config
+    from bogie_agents.training.tune import tune_agent
 
     kwargs = dict(trials=2, timesteps=2048, trial_time_s=120.0, episodes=1, write_config=tmp_path / "ppo_tuned.yaml",
                   n_envs=8, concurrent=2)  # fmt: skip
@@ -235,7 +235,7 @@ def test_rl_zoo_trains_on_the_registered_id(tmp_path):
 
 # ---- the evaluation protocol as tasks ------------------------------------------------------------
 def _small_settings():
-    from bogie_agents.evaluate import ProtocolSettings
+    from bogie_agents.evaluation.evaluate import ProtocolSettings
 
     return ProtocolSettings(v_min_kmh=300.0, v_max_kmh=400.0, grid_step_kmh=50.0, tol_kmh=25.0, duration_s=11.0,
                             ramp_seeds=1, effort_duration_s=1.0, effort_seeds=1,
@@ -244,7 +244,7 @@ def _small_settings():
 
 def _die_then_run_units(shared, chunk):
     """An evaluation task whose worker is killed on its first attempt."""
-    from bogie_agents.evaluation_tasks import run_units
+    from bogie_agents.evaluation.evaluation_tasks import run_units
 
     marker_dir, inner = shared
     marker = Path(marker_dir) / f"attempted_{chunk[0][0]}_{chunk[0][1]}"
@@ -255,9 +255,9 @@ def _die_then_run_units(shared, chunk):
 
 
 def _evaluation_equals_local(tmp_path, specs, parts, n_units):
-    from bogie_agents.evaluate import evaluate_policy
-    from bogie_agents.evaluation_tasks import evaluate_many
-    from bogie_agents.policies import load_policy
+    from bogie_agents.evaluation.evaluate import evaluate_policy
+    from bogie_agents.evaluation.evaluation_tasks import evaluate_many
+    from bogie_agents.controllers.policies import load_policy
     from bogie_env.envs.config import make_config
 
     env_config, settings = make_config(), _small_settings()
@@ -284,7 +284,7 @@ def test_ray_evaluation_of_critical_speeds_equals_local_bitwise(ray_cluster, tmp
 
 
 def test_ray_killed_evaluation_task_is_retried(ray_cluster, tmp_path):
-    from bogie_agents.evaluation_tasks import run_units
+    from bogie_agents.evaluation.evaluation_tasks import run_units
     from bogie_env.envs.config import make_config
 
     env_config, settings = make_config(), _small_settings()

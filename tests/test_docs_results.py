@@ -1,7 +1,7 @@
 """The docs say what results.json says: generated tables, the score and the numbers quoted in prose.
 
 Every block between ``<!-- results:NAME FILE -->`` and ``<!-- results:end -->`` in the README
-and docs/ must be what ``bogie_agents.scoreboard`` renders from FILE now, and every number tagged
+and docs/ must be what ``bogie_agents.evaluation.scoreboard`` renders from FILE now, and every number tagged
 ``<!-- rj:PATH -->`` must equal FILE's value at its own precision. After a new protocol run:
 ``bogie results --render-only --out docs/results/v1 --docs README.md --docs docs/results.md``.
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from bogie_agents import scoreboard as sb
+from bogie_agents.evaluation import scoreboard as sb
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / sb.DEFAULT_SOURCE
@@ -147,7 +147,7 @@ def test_refresh_rewrites_only_the_blocks_of_its_own_file(tmp_path):
 
 
 def test_render_only_writes_the_folder_and_the_docs_blocks_without_running(tmp_path, monkeypatch):
-    import bogie_agents.stability_protocol as sp
+    import bogie_agents.evaluation.stability_protocol as sp
     from bogie_agents.cli import main as cli_main
 
     monkeypatch.setattr(sp, "evaluate_policy_v2", lambda *a, **k: pytest.fail("--render-only ran the protocol"))
@@ -169,7 +169,7 @@ def test_render_only_writes_the_folder_and_the_docs_blocks_without_running(tmp_p
 
 
 def test_evaluate_puts_the_score_first_against_the_passive_row_of_its_run(monkeypatch, capsys):
-    import bogie_agents.stability_protocol as sp
+    import bogie_agents.evaluation.stability_protocol as sp
     from bogie_agents.cli import main as cli_main
 
     search = {"floor_kmh": 40.0, "ceiling_kmh": 600.0, "seeds": 10, "tol_kmh": 2.0}

@@ -84,7 +84,7 @@ def test_render_fps_is_one_over_dt():
 
 
 def test_sb3_set_attr_and_env_method_honour_indices():
-    from bogie_agents.vec_env import BogieHuntingSB3VecEnv
+    from bogie_agents.training.vec_env import BogieHuntingSB3VecEnv
 
     venv = BogieHuntingSB3VecEnv(3, seed=0)
     venv.reset()

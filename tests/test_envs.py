@@ -9,7 +9,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-from bogie_agents.vec_env import BogieHuntingSB3VecEnv
+from bogie_agents.training.vec_env import BogieHuntingSB3VecEnv
 import bogie_env  # noqa: F401  (registers the ids)
 from bogie_env.envs.config import make_config
 from bogie_env.envs.hunting_env import BogieHuntingEnv

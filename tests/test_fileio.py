@@ -44,7 +44,7 @@ def test_yaml_duplicates_and_syntax_errors(tmp_path, text, message):
 
 
 def test_every_project_yaml_loader_rejects_duplicates(tmp_path):
-    from bogie_agents.train import load_run_config
+    from bogie_agents.training.train import load_run_config
 
     path = tmp_path / "dup.yaml"
     path.write_text("speed:\n  accel: 1.0\n  accel: 2.0\n")

@@ -4,7 +4,7 @@ env below the analysis layer.
 Every ``import`` and ``from ... import`` statement counts, at module level or inside a function
 (a function-level import is a dependency all the same, only a late one). An import names the
 deepest project module it reaches: ``from .margins import PlantModel`` is an edge to
-``bogie_agents.margins``, ``from . import task`` one to ``bogie_env.envs.task``. A package's
+``bogie_agents.design.margins``, ``from . import task`` one to ``bogie_env.envs.task``. A package's
 ``__init__`` is not implied by importing a module inside it (that edge runs the other way by
 construction). Modules named by string (``importlib.import_module``, the protocol's part
 registry) are not imports here.
@@ -136,10 +136,10 @@ def graph() -> dict[str, set[str]]:
 def test_the_graph_sees_the_projects_imports(graph):
     """A graph that missed the imports would pass the tests below for nothing: it has every
     module, and the edges of known module- and function-level imports."""
-    assert {"bogie_env", "bogie_env.envs.task", "bogie_agents.margins", "bogie_agents.stability_protocol"} <= set(graph)
+    assert {"bogie_env", "bogie_env.envs.task", "bogie_agents.design.margins", "bogie_agents.evaluation.stability_protocol"} <= set(graph)
     assert "bogie_env.wheel_rail" in graph["bogie_env.envs.task"]  # from ..wheel_rail import ...
-    assert "bogie_agents.controllers" in graph["bogie_agents.margins"]  # function-level, in controller_model
-    assert "bogie_env.envs.task" in graph["bogie_agents.controllers"]  # from bogie_env.envs import task as T
+    assert "bogie_agents.controllers.lqr" in graph["bogie_agents.design.margins"]  # function-level, in controller_model
+    assert "bogie_env.envs.task" in graph["bogie_agents.controllers.lqr"]  # from bogie_env.envs import task as T
 
 
 def test_no_import_circle_among_the_projects_modules(graph):
@@ -196,3 +196,4 @@ def test_a_planted_two_module_circle_across_packages_is_found(tmp_path):
     _write(tmp_path / "app", {"__init__.py": "", "y.py": "from lib.x import f\n"})
     graph = import_graph({"lib": tmp_path / "lib", "app": tmp_path / "app"})
     assert find_cycles(graph) == [["app.y", "lib.x", "app.y"]]
+

@@ -1,4 +1,4 @@
-"""Stability margins (bogie_agents.margins) against independent oracles.
+"""Stability margins (bogie_agents.design.margins) against independent oracles.
 
 - the linear sampled plant against one interval of the compiled nonlinear simulator (signs of the
   force map, the lag, the delay);
@@ -18,10 +18,10 @@ import pytest
 
 pytest.importorskip("control")
 
-from bogie_agents import margin_oracles as O
-from bogie_agents import margins as M
+from bogie_agents.design import margin_oracles as O
+from bogie_agents.design import margins as M
 from bogie_agents.cli import main as cli_main
-from bogie_agents.controllers import LQGController, LQRController, PassiveController, SkyhookController
+from bogie_agents.controllers.lqr import LQGController, LQRController, PassiveController, SkyhookController
 from bogie_env.actuators import channel_table
 from bogie_env.dynamics import BogieModel, N_STATES
 from bogie_env.envs.config import bogie_params, make_config
@@ -49,7 +49,7 @@ def lqr(env_config):
 @pytest.fixture(scope="module")
 def pretrained_v0():
     """The shipped v0 PPO (v1 keeps v0's spaces), loaded once for the module."""
-    from bogie_agents.policies import load_policy
+    from bogie_agents.controllers.policies import load_policy
 
     return load_policy("pretrained", make_config())
 
@@ -197,7 +197,7 @@ def test_lqr_margins_hold_in_nonlinear_simulation(lqr, env_config, model, lqr_lo
 
 @pytest.mark.slow
 def test_pretrained_margins_hold_in_nonlinear_simulation(env_config, model):
-    from bogie_agents.policies import load_policy
+    from bogie_agents.controllers.policies import load_policy
 
     policy = load_policy("pretrained", env_config)
     loop = M.linear_loop(policy, env_config, SPEED_KMH, model=model)
@@ -470,7 +470,7 @@ def test_residual_policy_model(v1_config, v1_lqg, pretrained_v0):
     """A residual policy clip(LQG + scale * PPO): the baseline's model plus scale x the PPO's
     autograd Jacobian (linear_models.residual_controller_model), against its act, at its own
     closed-loop equilibrium (the PPO part commands a bias)."""
-    from bogie_agents.linear_models import residual_controller_model, sb3_jacobian_autograd
+    from bogie_agents.design.linear_models import residual_controller_model, sb3_jacobian_autograd
 
     ppo = pretrained_v0  # the shipped v0 PPO: v1 keeps v0's spaces
 

@@ -146,7 +146,7 @@ def test_every_shipped_config_and_the_pretrained_policy_are_package_data():
         for pattern in patterns:
             shipped |= {p for p in source_dir(package).glob(pattern) if p.is_file()}
     wanted = {p for folder in ("configs", "agents/pretrained") for p in (root / folder).rglob("*") if p.is_file()}
-    wanted.add(root / "agents" / "robust_gains.json")  # robust_damping's gain table
+    wanted |= {root / "agents" / "controllers" / name for name in ("robust_gains.json", "robust_gains_stage1.json")}  # robust_damping's gain tables
     assert wanted and not wanted - shipped, sorted(str(p.relative_to(root)) for p in wanted - shipped)
     packaged = {package for package in setup["packages"]}
     for init in list((root / "bogie_env").rglob("__init__.py")) + list((root / "agents").rglob("__init__.py")):

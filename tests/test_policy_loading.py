@@ -8,8 +8,8 @@ import shutil
 import numpy as np
 import pytest
 
-import bogie_agents.policies as policies
-from bogie_agents.policies import (
+import bogie_agents.controllers.policies as policies
+from bogie_agents.controllers.policies import (
     MANIFEST_FILE,
     NORMALISATION_FILE,
     PRETRAINED_DIR as PRETRAINED_ROOT,

@@ -1,4 +1,4 @@
-"""Evaluation protocol v2 (agents/stability_protocol.py): the pass criterion against independent
+"""Evaluation protocol v2 (agents/evaluation/stability_protocol.py): the pass criterion against independent
 numpy computations, the passive critical speed against the linear one, a destabilising
 controller, the JSON keys and the CLI's choice of protocol by env version.
 
@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bogie_agents import stability_protocol as sp
-from bogie_agents.ramp_down import IDEAL_WORLD, flange_span, hunting_end
-from bogie_agents.controllers import SkyhookController
+from bogie_agents.evaluation import stability_protocol as sp
+from bogie_agents.evaluation.ramp_down import IDEAL_WORLD, flange_span, hunting_end
+from bogie_agents.controllers.lqr import SkyhookController
 from bogie_env.envs.config import make_config
 from bogie_env.params import ConfigError
 from bogie_env.stability import critical_speed
@@ -437,7 +437,7 @@ def test_ramp_down_ideal_does_not_move_with_the_step(version):
     leaves its cycle, and the step's error changes that decision). Protocol v3, whose flange rule
     is a majority over the window's seconds, moves the ideal-track value by one 2 km/h window
     (110.1 to 112.1), no more."""
-    from bogie_agents.policies import load_policy
+    from bogie_agents.controllers.policies import load_policy
 
     settings = tiny(**{**RAMP, "conicities": (0.2,), "seeds": 1, "version": version})
     lqr = load_policy("lqr", make_config({"bogie_overrides": {"lam": 0.2}}, variant="v1"))  # designed once, copied per use
@@ -597,13 +597,13 @@ def test_cli_quick_is_a_marked_screening_with_a_score_per_policy(capsys, monkeyp
     assert cli_main(["evaluate", "--env", "Bogie/Hunting-v0", "--quick", "--policy", "passive"]) == 2
     assert "--quick is a screening run" in capsys.readouterr().err
     with pytest.raises(ConfigError, match="screening run"):
-        from bogie_agents import results
+        from bogie_agents.evaluation import results
 
         results.run_v2(["passive"], make_config(variant="v1"), Path("unused"), settings=real())
 
 
 def test_results_resume_refuses_rows_of_another_protocol_version(tmp_path):
-    from bogie_agents import results
+    from bogie_agents.evaluation import results
 
     (tmp_path / "results.json").write_text(json.dumps({"protocol_version": 2, "policies": [{"policy": "passive", "search": {}}]}))
     with pytest.raises(ConfigError, match="protocol_version = 2; this run has 3"):
@@ -635,7 +635,7 @@ def _entry(kmh: float, bound: str = "bisection to 2 km/h") -> dict:
 
 
 def test_v2_table_leaves_out_columns_where_every_controller_is_at_the_ceiling():
-    from bogie_agents.results import v2_table
+    from bogie_agents.evaluation.results import v2_table
 
     ceiling = _entry(600.0, "at least: every seed passes at the ceiling 600 km/h")
     results = [
@@ -655,7 +655,7 @@ def test_v2_table_leaves_out_columns_where_every_controller_is_at_the_ceiling():
 def test_the_table_and_the_summary_show_both_ramp_downs_apart():
     """The alert-track and the ideal-track ramp-downs go to their own columns and summary
     clauses, each with its own values (swapping the two parts' columns fails this)."""
-    import bogie_agents.results as results
+    import bogie_agents.evaluation.results as results
 
     ramp = {"by_conicity": {"0.025": _entry(470.0, "hunting ended: windows every 2 km/h"),
                             "0.1": _entry(240.0, "hunting ended: windows every 2 km/h")}}
@@ -675,7 +675,7 @@ def test_the_table_and_the_summary_show_both_ramp_downs_apart():
 
 
 def test_results_v2_writes_json_and_table_and_resumes(tmp_path, monkeypatch):
-    import bogie_agents.results as results
+    import bogie_agents.evaluation.results as results
 
     settings = tiny(seeds=1, columns=("conicity:0.1",))
     payload = results.run_v2(["passive"], make_config(variant="v1"), tmp_path, settings=settings, parts=("critical",))
@@ -687,7 +687,7 @@ def test_results_v2_writes_json_and_table_and_resumes(tmp_path, monkeypatch):
 
 
 def test_results_v2_resume_runs_only_the_missing_parts_and_a_crash_keeps_finished_rows(tmp_path, monkeypatch):
-    import bogie_agents.results as results
+    import bogie_agents.evaluation.results as results
 
     def fake(spec, env_config, settings, parts, trusted=False):
         calls.append((spec, tuple(parts)))
@@ -723,8 +723,8 @@ def test_results_v2_resume_runs_only_the_missing_parts_and_a_crash_keeps_finishe
 
 
 def test_results_v2_ray_backend_gets_the_missing_parts_of_kept_rows(tmp_path, monkeypatch):
-    import bogie_agents.evaluation_tasks as tasks
-    import bogie_agents.results as results
+    import bogie_agents.evaluation.evaluation_tasks as tasks
+    import bogie_agents.evaluation.results as results
 
     def fake_many(specs, env_config, settings, parts, address=None, workers=None, store_dir=None, trusted=False):
         groups.append((list(specs), tuple(parts)))
@@ -740,7 +740,7 @@ def test_results_v2_ray_backend_gets_the_missing_parts_of_kept_rows(tmp_path, mo
 
 
 def test_the_table_marks_a_column_only_when_a_seed_fails_below_its_value():
-    import bogie_agents.results as results
+    import bogie_agents.evaluation.results as results
 
     entry = {"kmh": 372.0, "bound": "bisection to 2 km/h", "spread_kmh": {"min": 372.0, "median": 420.0, "max": 600.0}}
     assert results.v2_speed({**entry, "fails_below_kmh": {"1": [444.1]}}) == "372 (420-600)"  # below seed 1's own value only
@@ -748,7 +748,7 @@ def test_the_table_marks_a_column_only_when_a_seed_fails_below_its_value():
 
 
 def test_results_v2_records_the_step_and_resumes_only_at_it(tmp_path, capsys):
-    import bogie_agents.results as results
+    import bogie_agents.evaluation.results as results
     from bogie_agents.cli import main as cli_main
     from bogie_env.params import ConfigError
 

@@ -1,4 +1,4 @@
-"""Residual RL (agents/residual.py), v1 training configs and the pretrained policy per env version."""
+"""Residual RL (agents/controllers/residual.py), v1 training configs and the pretrained policy per env version."""
 
 import json
 import shutil
@@ -8,16 +8,16 @@ import pytest
 import torch
 import yaml
 
-import bogie_agents.policies as policies
-from bogie_agents.controllers import PassiveController, SkyhookController
-from bogie_agents.curving_assist import SteeringController
-from bogie_agents.margins import check_controller_model, finite_difference_jacobian
-from bogie_agents.policies import PRETRAINED_DIR, SB3Policy, env_version, load_policy, pretrained_dir
-from bogie_agents.residual import (ResidualPolicy, ResidualVecEnv, WashedOutFeatures, check_residual_config, compose,
+import bogie_agents.controllers.policies as policies
+from bogie_agents.controllers.lqr import PassiveController, SkyhookController
+from bogie_agents.controllers.curving_assist import SteeringController
+from bogie_agents.design.margins import check_controller_model, finite_difference_jacobian
+from bogie_agents.controllers.policies import PRETRAINED_DIR, SB3Policy, env_version, load_policy, pretrained_dir
+from bogie_agents.controllers.residual import (ResidualPolicy, ResidualVecEnv, WashedOutFeatures, check_residual_config, compose,
                                    odd_actor)
-from bogie_agents.robust import RobustDampingController
-from bogie_agents.train import env_config_of, load_run_config, validate_run_config
-from bogie_agents.vec_env import BogieHuntingSB3VecEnv
+from bogie_agents.controllers.robust import RobustDampingController
+from bogie_agents.training.train import env_config_of, load_run_config, validate_run_config
+from bogie_agents.training.vec_env import BogieHuntingSB3VecEnv
 from bogie_env.envs import task as T
 from bogie_env.envs.config import make_config
 from bogie_env.params import CONFIG_DIR, ConfigError
@@ -225,7 +225,7 @@ def test_residual_training_smoke(tmp_path, features):
     }  # fmt: skip
     path = tmp_path / "ppo_v1.yaml"
     path.write_text(yaml.safe_dump(config))
-    from bogie_agents.train import train
+    from bogie_agents.training.train import train
 
     out = tmp_path / "run"
     summary = train(load_run_config(path, "ppo"), out, progress_bar=False)

@@ -1,4 +1,4 @@
-"""The robust classical baseline (bogie_agents.robust) against oracles that did not produce it.
+"""The robust classical baseline (bogie_agents.controllers.robust) against oracles that did not produce it.
 
 - the design plant (lateral linearisation, exact in speed) against margins' plant (full 20-state
   Jacobian at the equilibrium): the same frequency response;
@@ -21,9 +21,9 @@ import json
 import numpy as np
 import pytest
 
-from bogie_agents import margins as M
-from bogie_agents.policies import load_policy
-from bogie_agents.robust import (
+from bogie_agents.design import margins as M
+from bogie_agents.controllers.policies import load_policy
+from bogie_agents.controllers.robust import (
     DESIGN_CONICITIES,
     GAINS_FILE,
     DesignModel,
@@ -36,7 +36,7 @@ from bogie_agents.robust import (
     load_gains,
     save_gains,
 )
-from bogie_agents.robust_cli import main
+from bogie_agents.design.robust_cli import main
 from bogie_env.actuators import CHANNEL_NAMES
 from bogie_env.dynamics import state_index
 from bogie_env.envs import task as T
@@ -411,7 +411,7 @@ def test_report_margins_agree_with_the_margins_loop(config, controller):
 
 @pytest.mark.slow
 def test_report_runs(config, capsys):
-    """``python -m bogie_agents.robust_cli report`` end to end: the onsets and one stable margin row
+    """``python -m bogie_agents.design.robust_cli report`` end to end: the onsets and one stable margin row
     per speed, each loop named."""
     main(["report"])
     out = capsys.readouterr().out
@@ -422,7 +422,7 @@ def test_report_runs(config, capsys):
 
 
 def test_progress_printer_counts_and_estimates_the_time_left(capsys):
-    from bogie_agents.robust_cli import _progress_printer
+    from bogie_agents.design.robust_cli import _progress_printer
 
     progress = _progress_printer(3)
     progress("row a")

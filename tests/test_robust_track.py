@@ -1,4 +1,4 @@
-"""Stage 2 of robust_damping's design (bogie_agents.robust_track) against independent oracles.
+"""Stage 2 of robust_damping's design (bogie_agents.controllers.robust_track) against independent oracles.
 
 - the track input: the same alignment under both wheelsets at a very long wavelength is a
   slow lateral shift of the track, which an uncontrolled stable bogie follows (relative
@@ -16,14 +16,14 @@ import math
 import numpy as np
 import pytest
 
-from bogie_agents.robust import DesignModel, DesignSettings, closed_loop, filter_bank, load_gains
-from bogie_agents.robust_track import TrackSettings, check_lead, forced_response, track_input
+from bogie_agents.controllers.robust import DesignModel, DesignSettings, closed_loop, filter_bank, load_gains
+from bogie_agents.controllers.robust_track import TrackSettings, check_lead, forced_response, track_input
 from bogie_env.dynamics import state_index
 from bogie_env.envs.config import make_config, merge_config
 from bogie_env.simulator import BatchSimulator
 from bogie_env.stability import KMH
 from bogie_env.track import TrackProfile
-from bogie_agents.robust import LAT
+from bogie_agents.controllers.robust import LAT
 
 
 @pytest.fixture(scope="module")
@@ -124,8 +124,8 @@ def test_retune_uses_each_rows_own_track_weight(setup):
     """Rows are tuned independently: a per-row weight gives, at each row, the row of a run with
     that weight for every row (a bug that uses one row's weight everywhere, or another row's,
     fails this)."""
-    from bogie_agents.robust import load_gains, GAINS_FILE
-    from bogie_agents.robust_track import retune_track
+    from bogie_agents.controllers.robust import load_gains, GAINS_FILE
+    from bogie_agents.controllers.robust_track import retune_track
 
     config = setup[0]
     base = load_gains(GAINS_FILE.with_name("robust_gains_stage1.json"))

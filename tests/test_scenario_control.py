@@ -16,8 +16,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bogie_agents.stability_protocol import flange_touching
-from bogie_agents.vec_env import BogieHuntingSB3VecEnv
+from bogie_agents.evaluation.stability_protocol import flange_touching
+from bogie_agents.training.vec_env import BogieHuntingSB3VecEnv
 from bogie_env.actuators import H_GAIN, H_HELD_FORCE
 from bogie_env.analysis.en14363 import running_signals_rows
 from bogie_env.envs import scenario as scenarios
@@ -173,7 +173,7 @@ def test_bad_scales_name_the_key(key, value):
 
 
 def test_the_lqg_design_sees_the_noise_scale():
-    from bogie_agents.controllers import LQGController
+    from bogie_agents.controllers.lqr import LQGController
 
     def errors(config):  # the filter's sensor errors, without designing the whole controller
         config = make_config(config, variant="v1")

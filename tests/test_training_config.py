@@ -48,14 +48,14 @@ def _run_config(**changes):
      ({"algo": "dqn"}, "'algo' = 'dqn' is not allowed; allowed: ppo, sac, td3")],
 )  # fmt: skip
 def test_every_agent_config_key_is_validated(changes, message):
-    from bogie_agents.train import validate_run_config
+    from bogie_agents.training.train import validate_run_config
 
     with pytest.raises(ConfigError, match=message):
         validate_run_config(_run_config(**changes), "test.yaml")
 
 
 def test_shipped_agent_configs_are_valid():
-    from bogie_agents.train import load_run_config
+    from bogie_agents.training.train import load_run_config
 
     for algo in ("ppo", "sac", "td3"):
         load_run_config(None, algo)
@@ -63,7 +63,7 @@ def test_shipped_agent_configs_are_valid():
 
 @pytest.mark.parametrize("timesteps", [0, -5])
 def test_bad_timesteps_are_named_errors(tmp_path, timesteps, capsys):
-    from bogie_agents.train import train
+    from bogie_agents.training.train import train
 
     with pytest.raises(ConfigError, match=f"--timesteps \\(total_timesteps\\) = {timesteps} is not allowed"):
         train(_run_config(), tmp_path / "run", total_timesteps=timesteps)
@@ -81,7 +81,7 @@ def test_cli_train_names_seed_and_out(tmp_path, capsys):
 
 
 def test_progress_total_is_the_step_count_sb3_reaches():
-    from bogie_agents.train import steps_learned
+    from bogie_agents.training.train import steps_learned
 
     assert steps_learned(_run_config(n_envs=64, **{"hyperparams.n_steps": 256}), 50_000) == 65_536
     assert steps_learned(_run_config(n_envs=64, **{"hyperparams.n_steps": 256}), 65_536) == 65_536
@@ -89,7 +89,7 @@ def test_progress_total_is_the_step_count_sb3_reaches():
 
 
 def test_a_second_training_into_a_locked_folder_fails(tmp_path):
-    from bogie_agents.train import RunFolderLock, train
+    from bogie_agents.training.train import RunFolderLock, train
 
     with RunFolderLock(tmp_path / "run"):
         with pytest.raises(ConfigError, match="is in use by another training .*pid"):
@@ -99,7 +99,7 @@ def test_a_second_training_into_a_locked_folder_fails(tmp_path):
 
 
 def test_no_resume_moves_the_old_run_aside(tmp_path):
-    from bogie_agents.train import _latest_checkpoint, move_previous_run
+    from bogie_agents.training.train import _latest_checkpoint, move_previous_run
 
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
@@ -116,7 +116,7 @@ def test_no_resume_moves_the_old_run_aside(tmp_path):
 def test_resume_restores_the_evaluation_history(tmp_path):
     from types import SimpleNamespace
 
-    from bogie_agents.train import restore_evaluations
+    from bogie_agents.training.train import restore_evaluations
 
     (tmp_path / "eval").mkdir()
     np.savez(tmp_path / "eval" / "evaluations.npz", timesteps=np.array([1024, 2048]),

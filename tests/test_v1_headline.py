@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from bogie_agents import stability_protocol as sp
+from bogie_agents.evaluation import stability_protocol as sp
 from bogie_env.envs.config import make_config
 
 RESULTS = Path(__file__).resolve().parent.parent / "docs" / "results" / "v1" / "results.json"

@@ -4,7 +4,7 @@ It steps every environment in one call of the compiled task kernel.
 :class:`BogieHuntingVectorEnv` (Gymnasium 1.x, ``AutoresetMode.NEXT_STEP``): an env that
 terminated or truncated is reset on the *next* ``step`` call, which returns its first
 observation with reward 0, as Gymnasium's vector wrappers expect. The Stable-Baselines3
-``VecEnv`` over the same task (same-step reset) is :class:`bogie_agents.vec_env.BogieHuntingSB3VecEnv`,
+``VecEnv`` over the same task (same-step reset) is :class:`bogie_agents.training.vec_env.BogieHuntingSB3VecEnv`,
 so that this module imports neither SB3 nor torch.
 
 For the same seed, sub-env ``i`` follows exactly the trajectory of a single

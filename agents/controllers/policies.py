@@ -3,9 +3,9 @@
 ``load_policy(spec, env_config, trusted=False)`` returns an object with ``observation_type``,
 ``reset(n, rows)`` and ``act(obs) -> actions``:
 
-- ``passive``, ``skyhook``, ``lqr``, ``lqg``: :mod:`bogie_agents.controllers`;
-- ``robust_damping``: :mod:`bogie_agents.robust` (the robust classical baseline for v1, docs/controllers.md);
-- ``robust_steering``: ``robust_damping`` plus the curving assist of :mod:`bogie_agents.curving_assist`;
+- ``passive``, ``skyhook``, ``lqr``, ``lqg``: :mod:`bogie_agents.controllers.lqr`;
+- ``robust_damping``: :mod:`bogie_agents.controllers.robust` (the robust classical baseline for v1, docs/controllers.md);
+- ``robust_steering``: ``robust_damping`` plus the curving assist of :mod:`bogie_agents.controllers.curving_assist`;
 - ``pretrained``: the policy shipped for the env's version, ``agents/pretrained/v0/`` or
   ``agents/pretrained/v1/`` (see docs/results.md), checked against the SHA-256 sums in that
   folder's ``SHA256SUMS`` before anything in it is loaded. The version is the env id's
@@ -37,7 +37,7 @@ from bogie_env.params import ConfigError
 
 from .classical import CLASSICAL
 #: The shipped policies, one folder per env version (``v0``, ``v1``).
-PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
+PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
 ALGORITHMS = ("ppo", "sac", "td3")
 NORMALISATION_FILE = "vecnormalize.json"
 LEGACY_NORMALISATION_FILE = "vecnormalize.pkl"
@@ -240,8 +240,8 @@ def _find_model(path: Path) -> tuple[Path, Path | None, Path | None]:
 def load_sb3_policy(path: str | Path, trusted: bool = False, env_config: dict | None = None):
     """Load a trained model and its observation statistics. ``trusted`` must be True (see the module doc).
 
-    A run whose config has a ``residual`` section (:mod:`bogie_agents.residual`) loads as the
-    composite :class:`~bogie_agents.residual.ResidualPolicy`; its classical baseline is built
+    A run whose config has a ``residual`` section (:mod:`bogie_agents.controllers.residual`) loads as the
+    composite :class:`~bogie_agents.controllers.residual.ResidualPolicy`; its classical baseline is built
     for ``env_config`` (default: the run's own env config)."""
     if not trusted:
         raise ConfigError(f"refusing to load {str(path)!r}: {TRUST_HINT}")

@@ -26,7 +26,7 @@ from bogie_env.params import ConfigError
 from .tables import RAMP_DOWN_COLUMNS, RAMP_DOWN_PARTS, _at_ceiling, _fmt, v2_columns, v2_speed, v2_table  # noqa: F401 (re-exported)
 
 from .evaluate import PARTS, ProtocolSettings, _policy_config, evaluate_policy
-from .policies import load_policy, pretrained_dir
+from ..controllers.policies import load_policy, pretrained_dir
 
 
 def slug(spec: str) -> str:

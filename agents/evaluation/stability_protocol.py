@@ -1,6 +1,6 @@
 """Evaluation protocols v3 and v2, for the ``Bogie/Hunting-v1`` tasks (``bogie evaluate --env Bogie/Hunting-v1``).
 
-Protocol v1 (:mod:`bogie_agents.evaluate`) stays the protocol of the ``-v0`` ids. v3 (the
+Protocol v1 (:mod:`bogie_agents.evaluation.evaluate`) stays the protocol of the ``-v0`` ids. v3 (the
 default) and v2 (``Settings(version=2)``, ``bogie evaluate --protocol 2``) differ in one rule,
 the flange-contact time's (below); everything else is shared. They judge a
 controller the way a running-stability test judges a vehicle: under the v1 world (sensor
@@ -8,7 +8,7 @@ noise and bias, 10 ms loop delay, force-rate limits, an EN 13848-5 *alert* track
 14363's running-stability quantities. The definitions, limits and sources are in
 ``docs/results.md``, section "Protocol v3 (v1 env)"; in short:
 
-**Pass criterion** (:func:`bogie_agents.criterion.assess`), on a fixed-speed run of ``duration_s`` seconds after the
+**Pass criterion** (:func:`bogie_agents.evaluation.criterion.assess`), on a fixed-speed run of ``duration_s`` seconds after the
 first ``transient_s`` seconds:
 
 - no blow-up (the env's ``blowup`` flag, or a non-finite state or action);
@@ -59,10 +59,10 @@ a model-based controller (LQR, LQG) is gain-scheduled on that conicity; it is to
 about degraded parts, faults or the extra delay. A learned policy ignores its config.
 
 **Parts** are a registry (:data:`PARTS`, :func:`register_part`): ``critical`` (all the columns
-above), ``cost``, ``margins`` (:func:`bogie_agents.margins.margins_table`), ``ramp`` (the
+above), ``cost``, ``margins`` (:func:`bogie_agents.design.margins.margins_table`), ``ramp`` (the
 env's own episode over 5 seeds, protocol v1's ramp onset) and ``ramp_down`` (per conicity of
 the grid, the speed where the controller stops hunting that was fully developed at the ceiling:
-the ramp-down method of the nonlinear critical speed, closed loop; :mod:`bogie_agents.ramp_down`). Another module
+the ramp-down method of the nonlinear critical speed, closed loop; :mod:`bogie_agents.evaluation.ramp_down`). Another module
 adds a part by decorating ``fn(ctx: PartContext) -> dict`` with ``@register_part("name")``;
 the dict is merged into the controller's result. A module in :data:`PART_MODULES` is imported
 before the registry is read, so its parts are available to ``bogie evaluate --parts``
@@ -229,7 +229,7 @@ def factory_for(source: Any, trusted: bool = False) -> PolicyFactory:
     classical controller is designed for the config's bogie), a factory, or a policy object
     (copied for each use: controllers keep per-row state)."""
     if isinstance(source, str):
-        from .policies import CLASSICAL, load_policy
+        from ..controllers.policies import CLASSICAL, load_policy
 
         if source in CLASSICAL:
             return lambda cfg: load_policy(source, cfg, trusted)
@@ -371,7 +371,7 @@ def protocol_config(env_config: dict, settings: Settings, observation_type: str,
     """The task config of the protocol's runs: fixed speeds over the search range, the env's
     randomisation ranges kept (they set the integration step) but every draw pinned by reset
     options, no random faults, the large initial perturbation on every row. ``world``: a config
-    overlay merged last, e.g. :data:`bogie_agents.ramp_down.IDEAL_WORLD` (a perfect track, noise-free sensors)."""
+    overlay merged last, e.g. :data:`bogie_agents.evaluation.ramp_down.IDEAL_WORLD` (a perfect track, noise-free sensors)."""
     ranges = {k: v for k, v in env_config["randomize"].items() if k not in scenarios.PROBABILITIES}
     update: dict[str, Any] = {
         "speed": {"start_kmh": settings.floor_kmh, "end_kmh": settings.ceiling_kmh, "accel": 0.0,
@@ -621,8 +621,8 @@ PartFunction = Callable[[PartContext], dict]
 #: The protocol's parts, in their default order: name -> function(ctx) -> dict merged into the result.
 PARTS: dict[str, PartFunction] = {}
 #: Modules that register more parts when imported; imported lazily. ``curving``: the curving
-#: columns on the shipped routes (:mod:`bogie_agents.curving_evaluation`).
-PART_MODULES: tuple[str, ...] = ("bogie_agents.ramp_down", "bogie_agents.curving_evaluation")
+#: columns on the shipped routes (:mod:`bogie_agents.evaluation.curving_evaluation`).
+PART_MODULES: tuple[str, ...] = ("bogie_agents.evaluation.ramp_down", "bogie_agents.evaluation.curving_evaluation")
 DEFAULT_PARTS = ("critical", "cost")
 
 
@@ -748,8 +748,8 @@ def cost_part(ctx: PartContext) -> dict[str, Any]:
 
 @register_part("margins")
 def margins_part(ctx: PartContext) -> dict[str, Any]:
-    """Stability margins at nominal conicity (:func:`bogie_agents.margins.margins_table`)."""
-    from .margins import margins_table
+    """Stability margins at nominal conicity (:func:`bogie_agents.design.margins.margins_table`)."""
+    from ..design.margins import margins_table
 
     return {"margins": margins_table(ctx.policy(), ctx.env_config, list(ctx.settings.margin_speeds_kmh))}
 
@@ -757,7 +757,7 @@ def margins_part(ctx: PartContext) -> dict[str, Any]:
 @register_part("ramp")
 def ramp_part(ctx: PartContext) -> dict[str, Any]:
     """The env's own episode (its speed ramp, randomisation and hunting detector) over seeds:
-    protocol v1's ramp onset (:func:`bogie_agents.evaluate.ramp_onset`) on the v1 config."""
+    protocol v1's ramp onset (:func:`bogie_agents.evaluation.evaluate.ramp_onset`) on the v1 config."""
     from .evaluate import ProtocolSettings, ramp_onset
 
     config = policy_config(ctx.env_config, ctx.observation_type)

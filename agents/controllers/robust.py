@@ -26,7 +26,7 @@ The gains come from :func:`tune` (see docs/controllers.md): a multi-model search
 conicity grid and the speed range on the sampled design model (:meth:`DesignModel.plant`: the
 bogie's linearisation, the actuators' lag, zero-order hold, the loop delay and the sensors'
 anti-alias filters), with the margin floors as constraints; then from the second stage of
-:mod:`bogie_agents.robust_track` (a track-forced re-tune of the 90-270 km/h rows and the
+:mod:`bogie_agents.controllers.robust_track` (a track-forced re-tune of the 90-270 km/h rows and the
 command lead :func:`lead_command` at 240-270 km/h, zero from 300 km/h).
 """
 
@@ -48,7 +48,7 @@ from bogie_env.params import ConfigError
 from bogie_env.sampled_plant import PlantModel, sampled_plant
 from bogie_env.stability import KMH, linearize
 
-from .controllers import Controller, lateral_model, sensor_matrix
+from .lqr import Controller, lateral_model, sensor_matrix
 
 LAT = list(LATERAL_STATES)
 N_LAT = len(LAT)
@@ -108,12 +108,12 @@ class DesignModel:
 
     def continuous(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
         """(A, B) of ``[x_lat, F]`` with the normalised command as input, at ``speed`` (m/s)
-        (:func:`bogie_agents.controllers.lateral_model`)."""
+        (:func:`bogie_agents.controllers.lqr.lateral_model`)."""
         return lateral_model(self.model, self.lin, speed, self.active, self.bandwidth, self.max_force)
 
     def observation_matrix(self, a_cont: np.ndarray) -> np.ndarray:
         """The clean observation (before the sensor filters) from ``[x_lat, F]``: the six sensors
-        (:func:`bogie_agents.controllers.sensor_matrix`), the speed row 0, the channel forces."""
+        (:func:`bogie_agents.controllers.lqr.sensor_matrix`), the speed row 0, the channel forces."""
         c = np.zeros((self.n_obs, N_LAT + self.n_act))
         c[: len(T.SENSORS)] = sensor_matrix(a_cont, self.model.params)
         if self.include_actuators:
@@ -126,7 +126,7 @@ class DesignModel:
         ZOH, a command register per channel, the env's sensor filters), from the normalised
         command to the observation. Its bogie state is the 16 lateral states
         (``LATERAL_STATES``, its ``bogie_states``), not 20; ``x_eq`` is the straight-track
-        equilibrium of the linearisation. ``bogie_agents.margins.LinearLoop`` and
+        equilibrium of the linearisation. ``bogie_agents.design.margins.LinearLoop`` and
         ``loop_margins`` (extra whole-step and fractional delays per channel) apply to it."""
         a_c, b_c = self.continuous(speed_kmh / KMH)
         return sampled_plant(a_c, b_c, self.observation_matrix(a_c), self.config, self.active, (self.delay,) * self.n_act,
@@ -242,7 +242,7 @@ def start_state(bank: FilterBank) -> np.ndarray:
 # The gain table and the controller
 # =============================================================================================
 
-#: The shipped gain table (written by ``python -m bogie_agents.robust``; see docs/controllers.md).
+#: The shipped gain table (written by ``python -m bogie_agents.controllers.robust``; see docs/controllers.md).
 GAINS_FILE = Path(__file__).resolve().parent / "robust_gains.json"
 #: The largest command lead a gain table may ask for (s): five control steps of the v1 env.
 MAX_LEAD_S = 0.05
@@ -410,9 +410,9 @@ class RobustDampingController(Controller):
         return np.clip(u, -1.0, 1.0).astype(np.float32)
 
     def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray):
-        """The exact linear model at a fixed speed (``bogie_agents.margins.ControllerModel``):
+        """The exact linear model at a fixed speed (``bogie_agents.design.margins.ControllerModel``):
         the filter bank's state space with the interpolated gains on its output."""
-        from .margins import ControllerModel
+        from ..design.margins import ControllerModel
 
         if n_obs != self.n_obs:
             raise ConfigError(f"robust_damping: n_obs = {n_obs}, the controller takes {self.n_obs}")
@@ -590,10 +590,10 @@ def linear_onsets(controller: "RobustDampingController", env_config: dict, conic
 
 def design_margins(controller: "RobustDampingController", env_config: dict, speeds_kmh=(300.0, 350.0, 400.0, 450.0, 500.0),
                    conicity: float | None = None) -> list[dict]:  # fmt: skip
-    """Per-loop margins (``bogie_agents.margins.loop_margins``, python-control) of the design
+    """Per-loop margins (``bogie_agents.design.margins.loop_margins``, python-control) of the design
     model with the sensor filters and the loop delay (:meth:`DesignModel.plant`), at the
     given speeds."""
-    from .margins import LinearLoop, loop_margins
+    from ..design.margins import LinearLoop, loop_margins
 
     model = DesignModel(env_config, conicity)
     out = []
@@ -627,7 +627,7 @@ def report(env_config: dict) -> str:
     return "\n".join(lines)
 
 
-if __name__ == "__main__":  # the command line is bogie_agents.robust_cli; the older name still runs it
+if __name__ == "__main__":  # the command line is bogie_agents.design.robust_cli; the older name still runs it
     import runpy
 
-    runpy.run_module("bogie_agents.robust_cli", run_name="__main__")
+    runpy.run_module("bogie_agents.design.robust_cli", run_name="__main__")

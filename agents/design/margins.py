@@ -18,7 +18,7 @@ Pieces (all discrete at ``dt``):
   (:func:`sensor_filters`). Noise and bias do not enter; the force-rate limit never binds at
   small amplitude and is left out.
 - **Controller** (:func:`controller_model`): a discrete state space
-  (:class:`bogie_agents.linear_models.ControllerModel`) from the observation to the normalised
+  (:class:`bogie_agents.design.linear_models.ControllerModel`) from the observation to the normalised
   command. A policy's own ``controller_model(n_obs, speed_kmh, y0)`` method first; then
   skyhook, LQR and LQG from their own matrices (LQG with its Kalman filter states); SB3
   policies by the derivative of the deterministic action through the VecNormalize scaling and
@@ -41,7 +41,7 @@ whole steps; ``delay_margin_sampled_s`` is the exact figure between them. Margin
 meaningful only when the nominal closed loop is stable (``closed_loop_stable``); otherwise
 they are reported as None.
 
-Oracles (:mod:`bogie_agents.margin_oracles`): ``simulate_loop``, the same controller on the
+Oracles (:mod:`bogie_agents.design.margin_oracles`): ``simulate_loop``, the same controller on the
 compiled nonlinear bogie with per-loop gain factors and extra delays (to a fraction of
 ``dt``), and ``simulate_env``, the env's own task (``HuntingTask``) under ``quiet_env_config``.
 
@@ -270,17 +270,17 @@ def controller_model(policy, n_obs: int, speed_kmh: float, y0: np.ndarray) -> Co
     """The controller's linear model at the operating observation ``y0``.
 
     A policy's own ``controller_model(n_obs, speed_kmh, y0)`` method comes first (the hook of
-    :mod:`bogie_agents.linear_models`); then the classical controllers' matrices, SB3 policies by
+    :mod:`bogie_agents.design.linear_models`); then the classical controllers' matrices, SB3 policies by
     autograd, anything else by finite differences of ``act`` (assumed stateless).
     """
-    from .controllers import LQGController, LQRController, PassiveController, SkyhookController
+    from ..controllers.lqr import LQGController, LQRController, PassiveController, SkyhookController
 
     hook = getattr(policy, "controller_model", None)
     if callable(hook):
         ctrl = hook(n_obs, speed_kmh, np.asarray(y0, dtype=float))
         if not isinstance(ctrl, ControllerModel):
             raise TypeError(f"{type(policy).__name__}.controller_model returned {type(ctrl).__name__}; "
-                            "expected bogie_agents.linear_models.ControllerModel")  # fmt: skip
+                            "expected bogie_agents.design.linear_models.ControllerModel")  # fmt: skip
         ctrl.check_shapes(n_obs, ctrl.d.shape[0])
         return ctrl
     if isinstance(policy, PassiveController):

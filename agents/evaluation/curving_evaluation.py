@@ -31,7 +31,7 @@ the mean excess is at most the tolerance, ``2 x`` the standard error of the pair
 plus 1 % of passive's value (the seed spread: a controller whose excess is within twice its
 standard error is not distinguishable from passive with these seeds).
 
-``python -m bogie_agents.curving_evaluation --policy passive --policy lqr --json``, or
+``python -m bogie_agents.evaluation.curving_evaluation --policy passive --policy lqr --json``, or
 ``bogie curving-evaluate ...``; with protocol v2 present, the part ``curving`` of
 ``bogie evaluate --parts ...,curving``.
 """
@@ -292,7 +292,7 @@ def curving_columns(policy, env_config: Mapping[str, Any] | None = None, routes:
     taking a line). ``passive``: the passive result of the same settings (computed if None).
     Returns ``{"routes": {name: columns}, "settings": ..., "tolerance": ...}``.
     """
-    from .policies import CLASSICAL, load_policy
+    from ..controllers.policies import CLASSICAL, load_policy
 
     env_config = make_config(env_config, variant="v1") if env_config is None else make_config(env_config)
     settings = settings or CurvingSettings(seeds=seeds, seed=seed, routes=tuple(routes) if routes else None)
@@ -446,7 +446,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _register_protocol_part() -> None:
-    """Register ``curving`` as a part of protocol v2 (:mod:`bogie_agents.stability_protocol`)."""
+    """Register ``curving`` as a part of protocol v2 (:mod:`bogie_agents.evaluation.stability_protocol`)."""
     from .stability_protocol import register_part
 
     @register_part("curving")

@@ -1,6 +1,6 @@
 """Protocol v2/v3 results as text: a column's speed with its bound and spread, the columns of one
 controller's result in the table's order, and the full table (``table_full.md``). Read by
-:mod:`bogie_agents.results` (the summary line, ``bogie results``) and :mod:`bogie_agents.scoreboard`
+:mod:`bogie_agents.evaluation.results` (the summary line, ``bogie results``) and :mod:`bogie_agents.evaluation.scoreboard`
 (the rendered tables); neither imports the other for these."""
 
 from __future__ import annotations

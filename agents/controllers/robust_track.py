@@ -1,6 +1,6 @@
 """The second stage of ``robust_damping``'s design: the track-forced re-tune and the command lead.
 
-:func:`bogie_agents.robust.tune` maximises the worst damping ratio over the conicity grid. At
+:func:`bogie_agents.controllers.robust.tune` maximises the worst damping ratio over the conicity grid. At
 conicity 0.1 and 120-270 km/h that design moves the bogie's kinematic (track-following) mode to
 1.4-2.2 Hz, i.e. 20-32 m, inside the alert track's 3-25 m band, and the wheelsets stop
 following 20-25 m alignment: on the alert track they touch the flange 1-3 % of the time
@@ -16,7 +16,7 @@ table (Nelder-Mead per row, warm-started from it) on
   + w_zeta  x (- least damping ratio of the nominal loop at ``conicity``)
   + 50 x max(0, stage 1's objective - (its stage-1 value + slack))   (stage 1's design set)
 
-on the sampled design model (:func:`bogie_agents.robust.design_plant`'s model with the
+on the sampled design model (:func:`bogie_agents.controllers.robust.design_plant`'s model with the
 alignment under each wheelset as input, the rear wheelset's delayed by 2 L1 / V, held over each
 step). Rows outside ``speeds_kmh`` are kept. The track weight is larger on the rows up to
 180 km/h, where the alert track forces flange contact at 150-200 km/h on some seeds; on the rows
@@ -24,7 +24,7 @@ from 210 km/h a larger weight lowers the damping that keeps the saturated limit 
 230-250 km/h away (weights and wavelengths chosen on the protocol's conicity-0.1 column over
 seeds 20-79, docs/studies/floors_and_held_out_seeds.md).
 
-Then it sets the command lead (:func:`bogie_agents.robust.lead_command`): ``lead_s`` at the
+Then it sets the command lead (:func:`bogie_agents.controllers.robust.lead_command`): ``lead_s`` at the
 rows of ``lead_speeds_kmh``, zero elsewhere (interpolated linearly in speed, so it ramps in
 from the row below and out by the row above). At conicity 0.1, 230-250 km/h, the 12 mm start
 or the alert track drive the bogie into a 5 Hz limit cycle with every channel saturated; the
@@ -36,7 +36,7 @@ keep stage 1's gain factor 2 (:func:`check_lead`; docs/controllers.md, "Stage 2"
 It is zero from 300 km/h, so the nominal conicity's margins (300-450 km/h) and stage 1's
 high-speed rows are unchanged.
 
-    python -m bogie_agents.robust_cli retune --base agents/robust_gains_stage1.json --out agents/robust_gains.json
+    python -m bogie_agents.design.robust_cli retune --base agents/controllers/robust_gains_stage1.json --out agents/controllers/robust_gains.json
 """
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ def forced_response(plant: PlantModel, bank: FilterBank, gains: np.ndarray, e_d:
 
 def retune_track(env_config: dict, table: dict, settings: TrackSettings | None = None,
                  design: DesignSettings | None = None, progress=None) -> dict:  # fmt: skip
-    """Stage 2 on stage 1's ``table`` (:func:`bogie_agents.robust.load_gains`'s dict, all four
+    """Stage 2 on stage 1's ``table`` (:func:`bogie_agents.controllers.robust.load_gains`'s dict, all four
     channels active): a new table with the rows of ``settings.speeds_kmh`` re-tuned, the command
     lead set, and a per-row log (``track_design``)."""
     from scipy.optimize import minimize

@@ -35,7 +35,7 @@ import yaml
 
 from bogie_env.params import CONFIG_DIR, ConfigError
 
-from .policies import NORMALISATION_FILE, apply_normalisation, load_normalisation
+from ..controllers.policies import NORMALISATION_FILE, apply_normalisation, load_normalisation
 from .train import load_run_config, train, validate_run_config, write_json_atomic
 
 TASK_IDS = ("Bogie/Hunting-v1", "Bogie/Hunting-v0")  # newest first

@@ -1,6 +1,6 @@
 """The ramp-down parts of the protocol (``ramp_down``, ``ramp_down_ideal``): the closed loop's
 nonlinear critical speed by the ramp-down method (True 2013), per conicity of the grid. The
-protocol imports this module by name (:data:`bogie_agents.stability_protocol.PART_MODULES`)
+protocol imports this module by name (:data:`bogie_agents.evaluation.stability_protocol.PART_MODULES`)
 when it reads its registry of parts."""
 
 from __future__ import annotations

@@ -19,9 +19,10 @@ from pathlib import Path
 
 from bogie_env.distributed import ChunkStore, map_chunks, source_digest
 
-from . import controllers, evaluate, policies
+from ..controllers import lqr as controllers, policies
+from . import evaluate
 from .evaluate import PARTS, ProtocolSettings, evaluate_policy
-from .policies import PRETRAINED_DIR, load_policy
+from ..controllers.policies import PRETRAINED_DIR, load_policy
 
 
 def units(specs: list[str], parts: tuple[str, ...], settings: ProtocolSettings) -> list[list]:

@@ -1,7 +1,7 @@
 """Linear models of controllers: what a policy does to a small change of its observation.
 
-Shared by :mod:`bogie_agents.controllers` (a controller may describe itself) and
-:mod:`bogie_agents.margins` (which puts the model in the loop), with no import of either, so
+Shared by :mod:`bogie_agents.controllers.lqr` (a controller may describe itself) and
+:mod:`bogie_agents.design.margins` (which puts the model in the loop), with no import of either, so
 neither imports the other through it.
 
 :class:`ControllerModel` is a discrete state space at the env's step ``dt``:
@@ -13,7 +13,7 @@ action box [-1, 1]) from the action at rest.
 
     controller_model(n_obs: int, speed_kmh: float, y0: np.ndarray) -> ControllerModel
 
-and :func:`bogie_agents.margins.controller_model` uses it instead of its own rules. ``y0`` is
+and :func:`bogie_agents.design.margins.controller_model` uses it instead of its own rules. ``y0`` is
 the observation the env gives at the operating point (the closed loop's equilibrium at
 ``speed_kmh`` on perfect track, sensor noise and bias off, the anti-alias filters settled);
 ``n_obs == y0.size``.

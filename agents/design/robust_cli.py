@@ -1,10 +1,10 @@
-"""The robust controller's command line: ``python -m bogie_agents.robust_cli WHAT``.
+"""The robust controller's command line: ``python -m bogie_agents.design.robust_cli WHAT``.
 
 - ``design [--out FILE] [--washout-order 2]``: the stage-1 gain table for the v1 env
-  (:func:`bogie_agents.robust.tune`);
+  (:func:`bogie_agents.controllers.robust.tune`);
 - ``retune --base STAGE1 [--out FILE] [--w-track W] [--w-yaw W]``: stage 2
-  (:func:`bogie_agents.robust_track.retune_track`);
-- ``report``: the design's linear onsets by conicity and its margins (:func:`bogie_agents.robust.report`);
+  (:func:`bogie_agents.controllers.robust_track.retune_track`);
+- ``report``: the design's linear onsets by conicity and its margins (:func:`bogie_agents.controllers.robust.report`);
 - ``ramp [--policy NAME ...]``: onsets on the v1 ramp by conicity (:func:`ramp_onsets`);
 - ``route``: closed-loop curving on the v1 route variant (:func:`route_run`).
 """
@@ -23,9 +23,9 @@ from bogie_env.actuators import CHANNEL_NAMES
 from bogie_env.envs.config import make_config
 from bogie_env.envs.task import HuntingTask
 
-from .policies import load_policy
-from .robust import GAINS_FILE, WASHOUT_ORDERS, DesignSettings, load_gains, report, save_gains, tune
-from .robust_track import TrackSettings, retune_track
+from ..controllers.policies import load_policy
+from ..controllers.robust import GAINS_FILE, WASHOUT_ORDERS, DesignSettings, load_gains, report, save_gains, tune
+from ..controllers.robust_track import TrackSettings, retune_track
 
 
 def ramp_onsets(spec: str, env_config: dict, conicity: float, seeds: int = 10) -> dict:
@@ -104,14 +104,14 @@ def _progress_printer(total: int):
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m bogie_agents.robust_cli design [--out FILE]``: design the gain table for the v1 env (stage 1);
-    ``python -m bogie_agents.robust_cli retune --base STAGE1 [--out FILE]``: stage 2 (:mod:`bogie_agents.robust_track`);
-    ``python -m bogie_agents.robust_cli report``: its linear onsets by conicity and its margins;
-    ``python -m bogie_agents.robust_cli ramp --policy NAME``: onsets on the v1 ramp by conicity;
-    ``python -m bogie_agents.robust_cli route``: closed-loop curving on the v1 route variant."""
+    """``python -m bogie_agents.design.robust_cli design [--out FILE]``: design the gain table for the v1 env (stage 1);
+    ``python -m bogie_agents.design.robust_cli retune --base STAGE1 [--out FILE]``: stage 2 (:mod:`bogie_agents.controllers.robust_track`);
+    ``python -m bogie_agents.design.robust_cli report``: its linear onsets by conicity and its margins;
+    ``python -m bogie_agents.design.robust_cli ramp --policy NAME``: onsets on the v1 ramp by conicity;
+    ``python -m bogie_agents.design.robust_cli route``: closed-loop curving on the v1 route variant."""
     parser = argparse.ArgumentParser(description=main.__doc__)
     parser.add_argument("what", choices=("design", "retune", "report", "ramp", "route"))
-    parser.add_argument("--base", default=None, help="retune: stage 1's gain table (python -m bogie_agents.robust_cli design --out FILE)")
+    parser.add_argument("--base", default=None, help="retune: stage 1's gain table (python -m bogie_agents.design.robust_cli design --out FILE)")
     parser.add_argument("--steps", type=int, default=6000, help="route: env steps per episode at most")
     parser.add_argument("--policy", action="append", help="ramp: policy names (default: passive and robust_damping)")
     parser.add_argument("--conicities", default="0.025,0.05,0.1,0.2,0.3", help="ramp: comma-separated conicities")
@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> None:
         report_row = _progress_printer(len(track.speeds_kmh))
         base = load_gains(args.base)
         table = retune_track(config, base, track, progress=lambda row: report_row(json.dumps(row)))
-        table["command"] = (f"{base.get('command', '?')} --out STAGE1; python -m bogie_agents.robust_cli retune --variant {args.variant} --base STAGE1"
+        table["command"] = (f"{base.get('command', '?')} --out STAGE1; python -m bogie_agents.design.robust_cli retune --variant {args.variant} --base STAGE1"
                             + (f" --w-track {args.w_track}" if args.w_track is not None else "")
                             + (f" --w-yaw {args.w_yaw:g}" if args.w_yaw is not None else ""))  # fmt: skip
         save_gains(table, args.out)
@@ -173,7 +173,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     settings = DesignSettings(washout_order=args.washout_order)
     table = tune(config, settings, _progress_printer(len(settings.speeds_kmh)))
-    table["command"] = f"python -m bogie_agents.robust_cli design --variant {args.variant}" + (
+    table["command"] = f"python -m bogie_agents.design.robust_cli design --variant {args.variant}" + (
         f" --washout-order {args.washout_order}" if args.washout_order != 1 else "")
     save_gains(table, args.out)
     print(f"wrote {args.out}")

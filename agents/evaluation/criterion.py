@@ -1,7 +1,7 @@
 """The protocol's pass criterion for fixed-speed runs and ramp-down windows (protocols v2 and v3):
 EN 14363's band-passed ΣY and frame-acceleration rms against their limits, the flange-contact
 time (v3: counted only when sustained), and blow-ups. ``settings`` is the protocol's
-:class:`bogie_agents.stability_protocol.Settings` (its criterion fields); the definitions,
+:class:`bogie_agents.evaluation.stability_protocol.Settings` (its criterion fields); the definitions,
 limits and sources are in docs/results.md, "Protocol v3"."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The margins' nonlinear oracles: the closed loop of :mod:`bogie_agents.margins` run in time.
+"""The margins' nonlinear oracles: the closed loop of :mod:`bogie_agents.design.margins` run in time.
 
 - :func:`simulate_loop`: the same controller on the compiled nonlinear bogie
   (``BatchSimulator``), with per-loop gain factors and extra command delays applied to a

@@ -2,7 +2,7 @@
 
 The command is ``u = clip(baseline(y) + scale * pi(y), -1, 1)`` (Silver et al. 2018, "Residual
 Policy Learning"; Johannink et al. 2019, "Residual Reinforcement Learning for Robot Control"):
-``baseline`` is a classical controller (a name of :data:`bogie_agents.policies.CLASSICAL`, e.g.
+``baseline`` is a classical controller (a name of :data:`bogie_agents.controllers.policies.CLASSICAL`, e.g.
 ``robust_steering`` for the shipped v1 policy; any object with ``reset`` and ``act``), ``pi`` the network's deterministic action in [-1, 1] and ``scale`` the
 network's authority, a fraction of each channel's command range.
 
@@ -34,7 +34,7 @@ MAX_SCALE = 1.0
 
 #: What the network sees (``residual.features``): ``observation``, the env's observation (through
 #: VecNormalize); ``washed_out``, the robust baseline's zero-DC design signals (washed-out gyro and
-#: accelerometer, difference quotients of the relative displacements; :func:`bogie_agents.robust.filter_bank`),
+#: accelerometer, difference quotients of the relative displacements; :func:`bogie_agents.controllers.robust.filter_bank`),
 #: scaled by :data:`FEATURE_SCALES`, and the same signals times the measured speed / 600 km/h.
 FEATURES = ("observation", "washed_out")
 #: Typical hunting amplitudes of the design signals (1 mm, 1 mrad at 3 Hz): wheelset and frame yaw
@@ -69,7 +69,7 @@ class WashedOutFeatures:
     ``[s / FEATURE_SCALES, s / FEATURE_SCALES x speed / 600 km/h]``, clipped to +-10, with ``s``
     the six design signals of the robust baseline's filter bank (its own filter states, reset per
     row; a row's filters start as ``robust_damping``'s do, settled on the first observation with
-    the accelerometer chain at rest: :func:`bogie_agents.robust.start_state`). With an actor that has no
+    the accelerometer chain at rest: :func:`bogie_agents.controllers.robust.start_state`). With an actor that has no
     biases and an odd activation (tanh), the residual is an odd function of these features:
     zero at rest, zero in a steady curve, zero for a constant sensor bias."""
 
@@ -179,7 +179,7 @@ class ResidualPolicy:
     """A trained residual: ``act(y) = clip(baseline.act(y) + scale * network.act(x), -1, 1)``, with
     ``x`` the observation ``y`` or, for ``features: washed_out``, :class:`WashedOutFeatures` of it.
 
-    ``network`` is an :class:`bogie_agents.policies.SB3Policy` (deterministic, on normalised
+    ``network`` is an :class:`bogie_agents.controllers.policies.SB3Policy` (deterministic, on normalised
     observations); ``baseline`` a classical controller built for the same env config."""
 
     def __init__(self, baseline, network, scale: float, name: str, features=None) -> None:
@@ -206,7 +206,7 @@ class ResidualPolicy:
         model beside the feature filters (if any), with ``scale x J`` (``J`` the network's Jacobian
         by torch autograd, through its input normalisation) on the features' output; a channel
         whose composite command is clipped at ``y0`` has zero small-signal gain."""
-        from .margins import ControllerModel, controller_model, sb3_action, sb3_jacobian_autograd
+        from ..design.margins import ControllerModel, controller_model, sb3_action, sb3_jacobian_autograd
 
         y0 = np.asarray(y0, dtype=np.float64)
         base = controller_model(self.baseline, n_obs, speed_kmh, y0)

@@ -31,7 +31,7 @@ from bogie_env.envs.config import make_config
 from bogie_env.fileio import load_yaml, write_text_atomic
 from bogie_env.params import CONFIG_DIR, ConfigError
 
-from .policies import NORMALISATION_FILE, save_normalisation
+from ..controllers.policies import NORMALISATION_FILE, save_normalisation
 
 ALGOS = ("ppo", "sac", "td3")
 RUN_KEYS = {"algo", "seed", "total_timesteps", "n_envs", "env_id", "env", "eval_env", "vecnormalize", "policy",
@@ -161,7 +161,7 @@ def validate_run_config(config: dict, where: str = "") -> None:
         except ConfigError as error:
             raise ConfigError(f"agent config {where}: in 'extra_envs[{k}]': {error}") from None
     if config.get("residual") is not None:
-        from .residual import check_residual_config
+        from ..controllers.residual import check_residual_config
 
         residual = check_residual_config(config["residual"], where=f"agent config {where}: 'residual'")
         if residual["features"] == "washed_out" and (config.get("vecnormalize") or {}).get("norm_obs", True):
@@ -238,11 +238,11 @@ def env_config_of(config: dict, key: str = "env") -> dict:
 
 
 def _residual(venv, config: dict, env_config: dict):
-    """Wrap the native VecEnv in :class:`~bogie_agents.residual.ResidualVecEnv` if the run is a residual one."""
+    """Wrap the native VecEnv in :class:`~bogie_agents.controllers.residual.ResidualVecEnv` if the run is a residual one."""
     if config.get("residual") is None:
         return venv
-    from .policies import load_policy
-    from .residual import ResidualVecEnv, WashedOutFeatures, check_residual_config
+    from ..controllers.policies import load_policy
+    from ..controllers.residual import ResidualVecEnv, WashedOutFeatures, check_residual_config
 
     residual = check_residual_config(config["residual"])
     features = WashedOutFeatures(env_config) if residual["features"] == "washed_out" else None
@@ -457,7 +457,7 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
                     tensorboard_log=str(out / "tb"), policy_kwargs=_policy_kwargs(config), **hyper)  # fmt: skip
 
     if (config.get("residual") or {}).get("features") == "washed_out":
-        from .residual import odd_actor
+        from ..controllers.residual import odd_actor
 
         odd_actor(model)  # after a resume too: requires_grad is not saved
     started = time.time()

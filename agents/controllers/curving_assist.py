@@ -53,7 +53,7 @@ from bogie_env.envs import task as T
 from bogie_env.envs.config import bogie_params
 from bogie_env.params import ConfigError
 
-from .controllers import Controller
+from .lqr import Controller
 
 
 class CurvingAssist(Controller):
