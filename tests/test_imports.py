@@ -197,3 +197,57 @@ def test_a_planted_two_module_circle_across_packages_is_found(tmp_path):
     graph = import_graph({"lib": tmp_path / "lib", "app": tmp_path / "app"})
     assert find_cycles(graph) == [["app.y", "lib.x", "app.y"]]
 
+
+#: bogie_agents' subpackages (and its command line) -> the ones each may import (docs/extending.md,
+#: "Code layout"): design analyses controllers, evaluation runs both, training trains controllers and
+#: scores them, and only the command line (and ``__main__``, its launcher) sees everything.
+LAYERS = {
+    "controllers": set(),
+    "design": {"controllers"},
+    "evaluation": {"controllers", "design"},
+    "training": {"controllers", "evaluation"},
+    "cli": {"controllers", "design", "evaluation", "training"},
+    "__main__": {"cli"},
+}
+#: The upward imports the layers allow, each inside a function: a controller's own linear model and
+#: the robust design's margins use the margins' tools (the module graph above has no circle).
+UPWARD = {
+    ("bogie_agents.controllers.residual", "bogie_agents.design.margins"),  # ResidualPolicy.controller_model
+    ("bogie_agents.controllers.robust", "bogie_agents.design.margins"),  # controller_model, design_margins
+}
+
+
+def _layer(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if parts[0] == "bogie_agents" and len(parts) > 1 and parts[1] != "pretrained" else None
+
+
+def test_bogie_agents_has_its_subpackages_and_a_flat_top():
+    """Every module of bogie_agents sits in one of the layers' subpackages, except the package
+    itself, its command line and its launcher."""
+    modules = [m for m in project_modules(PACKAGES) if m.startswith("bogie_agents")]
+    assert {_layer(m) for m in modules} - {None} == set(LAYERS)
+    assert {m for m in modules if m.count(".") == 1} == {"bogie_agents.cli", "bogie_agents.__main__", *(f"bogie_agents.{s}" for s in LAYERS if s not in ("cli", "__main__"))}
+    assert all(m.count(".") <= 2 for m in modules), "no deeper subpackages"
+
+
+def test_the_subpackages_import_along_the_layers(graph):
+    wrong = sorted(
+        f"{m} -> {t}"
+        for m, targets in graph.items() if _layer(m)
+        for t in targets if _layer(t) and _layer(t) != _layer(m) and _layer(t) not in LAYERS[_layer(m)] and (m, t) not in UPWARD
+    )  # fmt: skip
+    assert not wrong, "imports against the layers: " + "; ".join(wrong)
+    assert not any("bogie_agents.cli" in targets for m, targets in graph.items() if m != "bogie_agents.__main__")
+
+
+def test_the_allowed_upward_imports_are_function_level_and_still_there(graph):
+    """An allowed upward import is one inside a function, never at module level (a module-level
+    one would tie the layers together at import time); one that is gone leaves the list."""
+    modules = project_modules(PACKAGES)
+    for module, target in UPWARD:
+        assert target in graph[module], (module, target)
+        for node in ast.parse(modules[module].read_text()).body:  # the module-level statements
+            if isinstance(node, ast.ImportFrom):
+                base = _absolute(module, False, node.level, node.module)
+                assert _project_module(base, modules) != target, f"{module} imports {target} at module level"
