@@ -205,69 +205,30 @@ def _default_v2_parts() -> str:
 
 def _evaluate_v2(args: argparse.Namespace, env_config: dict) -> list[dict]:
     """Protocol v2 (agents/evaluation/stability_protocol.py) for every --policy."""
-    from .controllers.policies import load_policy
-    from .evaluation.stability_protocol import available_parts, evaluate_policy_v2
+    from .evaluation.results import evaluate_v2
+    from .evaluation.stability_protocol import available_parts
 
     parts = _requested_parts(args, set(available_parts()), "critical" if args.quick else _default_v2_parts())
-    for spec in args.policy:
-        load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any run
-    settings = protocol_settings(args)
-    if args.backend == "ray":  # one task per controller and part (docs/distributed.md)
-        from .evaluation.evaluation_tasks import evaluate_many_v2
-
-        store = Path(f"{args.out}.chunks") if args.out else None
-        return evaluate_many_v2(args.policy, env_config, settings, parts, args.address, args.workers, store_dir=store,
-                                progress=True, trusted=args.trust_policy)  # fmt: skip
-    return [evaluate_policy_v2(spec, env_config, settings, parts, trusted=args.trust_policy) for spec in args.policy]
+    store = Path(f"{args.out}.chunks") if args.out else None
+    return evaluate_v2(args.policy, env_config, protocol_settings(args), parts, args.backend, args.address, args.workers,
+                       store_dir=store, trusted=args.trust_policy)  # fmt: skip
 
 
 def _evaluate_v1(args: argparse.Namespace, env_config: dict) -> list[dict]:
     """Protocol v1 (agents/evaluation/evaluate.py), unchanged, for the -v0 ids."""
-    from .evaluation.evaluate import ProtocolSettings, evaluate_policy
-    from .controllers.policies import load_policy
+    from .evaluation.results import evaluate_v1
 
     requested = _requested_parts(args, {"critical", "ramp", "effort", "robustness", "margins"}, "critical,ramp,effort,robustness")
-    parts = tuple(p for p in requested if p != "margins")  # margins: bogie margins' table, beside the protocol
-    settings = ProtocolSettings(seed=args.seed)
-    if not parts:
-        results = [{} for _ in args.policy]
-    elif args.backend == "ray":  # one task per controller and part (docs/distributed.md)
-        from .evaluation.evaluation_tasks import evaluate_many
-
-        for spec in args.policy:
-            load_policy(spec, env_config, args.trust_policy)  # a bad name or path fails here, before any task starts
-        store = Path(f"{args.out}.chunks") if args.out else None
-        results = evaluate_many(args.policy, env_config, settings, parts, args.backend, args.address, args.workers,
-                                store_dir=store, progress=not args.json, trusted=args.trust_policy)  # fmt: skip
-    else:
-        results = [evaluate_policy(load_policy(spec, env_config, args.trust_policy), env_config, settings, parts)
-                   for spec in args.policy]  # fmt: skip
-    for spec, result in zip(args.policy, results):
-        result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
-        if "margins" in requested:
-            from .design.margins import margins_table
-
-            result["margins"] = margins_table(load_policy(spec, env_config, args.trust_policy), env_config)
-    return results
+    store = Path(f"{args.out}.chunks") if args.out else None
+    return evaluate_v1(args.policy, env_config, requested, args.seed, args.backend, args.address, args.workers,
+                       store_dir=store, progress=not args.json, trusted=args.trust_policy)  # fmt: skip
 
 
 def _print_v1(results: list[dict]) -> None:
-    for r in results:
-        line = f"{r['policy']:>12s}:"
-        if "closed_loop_critical_speed_kmh" in r:
-            from .evaluation.results import speed_text
+    from .evaluation.results import v1_summary
 
-            line += (f" closed-loop critical speed {speed_text(r)} km/h "
-                     f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']}; "
-                     f"search {r['protocol']['search_kmh'][0]:g}-{r['protocol']['search_kmh'][1]:g} km/h)")  # fmt: skip
-        if "ramp" in r:
-            line += f"; ramp reached {r['ramp']['mean_reached_kmh']} km/h (hunted {r['ramp']['hunted']}/{len(r['ramp']['seeds'])})"
-        if "margins" in r:
-            m = r["margins"]
-            line += (f"; margins over {m['speeds_kmh'][0]:g}-{m['speeds_kmh'][-1]:g} km/h: "
-                     + (f"unstable at {m['unstable_at_kmh']} km/h" if m["unstable_at_kmh"] else
-                        f"gain {m['gain_margin']}, delay {m['delay_margin_s']} s"))  # fmt: skip
-        print(line)
+    for r in results:
+        print(v1_summary(r))
 
 
 @command("margins", "stability margins of a controller's loop (gain, phase, delay, disk) per speed and actuator")

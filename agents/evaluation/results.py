@@ -303,3 +303,64 @@ def _check_same_run(json_path: Path, n_sub: int | None, seed: int, protocol_vers
         if before.get(key, default) != now:
             raise ConfigError(f"--resume: {str(json_path)!r} holds rows run with {key} = {before.get(key, default)}; this "
                               f"run has {now}: rows of different runs do not belong in one table; use another --out")  # fmt: skip
+
+
+def evaluate_v2(specs: list[str], env_config: dict, settings, parts: tuple[str, ...], backend: str = "local",
+                address: str | None = None, workers: int | None = None, store_dir: Path | None = None,
+                trusted: bool = False) -> list[dict]:  # fmt: skip
+    """Protocol v2 (:mod:`bogie_agents.evaluation.stability_protocol`) for every policy spec: ``bogie evaluate`` on a -v1 id."""
+    from .stability_protocol import evaluate_policy_v2
+
+    for spec in specs:
+        load_policy(spec, env_config, trusted)  # a bad name or path fails here, before any run
+    if backend == "ray":  # one task per controller and part (docs/distributed.md)
+        from .evaluation_tasks import evaluate_many_v2
+
+        return evaluate_many_v2(specs, env_config, settings, parts, address, workers, store_dir=store_dir,
+                                progress=True, trusted=trusted)  # fmt: skip
+    return [evaluate_policy_v2(spec, env_config, settings, parts, trusted=trusted) for spec in specs]
+
+
+def evaluate_v1(specs: list[str], env_config: dict, requested: tuple[str, ...], seed: int = 0, backend: str = "local",
+                address: str | None = None, workers: int | None = None, store_dir: Path | None = None,
+                progress: bool = True, trusted: bool = False) -> list[dict]:  # fmt: skip
+    """Protocol v1 (:mod:`bogie_agents.evaluation.evaluate`), unchanged, for every policy spec: ``bogie evaluate``
+    on a -v0 id; ``margins`` among the ``requested`` parts adds bogie margins' table beside the protocol."""
+    parts = tuple(p for p in requested if p != "margins")  # margins: bogie margins' table, beside the protocol
+    settings = ProtocolSettings(seed=seed)
+    if not parts:
+        results = [{} for _ in specs]
+    elif backend == "ray":  # one task per controller and part (docs/distributed.md)
+        from .evaluation_tasks import evaluate_many
+
+        for spec in specs:
+            load_policy(spec, env_config, trusted)  # a bad name or path fails here, before any task starts
+        results = evaluate_many(specs, env_config, settings, parts, backend, address, workers,
+                                store_dir=store_dir, progress=progress, trusted=trusted)  # fmt: skip
+    else:
+        results = [evaluate_policy(load_policy(spec, env_config, trusted), env_config, settings, parts)
+                   for spec in specs]  # fmt: skip
+    for spec, result in zip(specs, results):
+        result["policy"] = spec  # as the user named it (a path, or passive, pretrained, ...)
+        if "margins" in requested:
+            from ..design.margins import margins_table
+
+            result["margins"] = margins_table(load_policy(spec, env_config, trusted), env_config)
+    return results
+
+
+def v1_summary(r: dict) -> str:
+    """One line of a protocol-v1 result (``bogie evaluate`` on a -v0 id)."""
+    line = f"{r['policy']:>12s}:"
+    if "closed_loop_critical_speed_kmh" in r:
+        line += (f" closed-loop critical speed {speed_text(r)} km/h "
+                 f"(small {r['from_small_perturbation_kmh']}, limit cycle {r['from_passive_limit_cycle_kmh']}; "
+                 f"search {r['protocol']['search_kmh'][0]:g}-{r['protocol']['search_kmh'][1]:g} km/h)")  # fmt: skip
+    if "ramp" in r:
+        line += f"; ramp reached {r['ramp']['mean_reached_kmh']} km/h (hunted {r['ramp']['hunted']}/{len(r['ramp']['seeds'])})"
+    if "margins" in r:
+        m = r["margins"]
+        line += (f"; margins over {m['speeds_kmh'][0]:g}-{m['speeds_kmh'][-1]:g} km/h: "
+                 + (f"unstable at {m['unstable_at_kmh']} km/h" if m["unstable_at_kmh"] else
+                    f"gain {m['gain_margin']}, delay {m['delay_margin_s']} s"))  # fmt: skip
+    return line
