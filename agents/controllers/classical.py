@@ -8,10 +8,13 @@ residual policy's ``baseline`` (:mod:`bogie_agents.controllers.residual`) accept
 
 from __future__ import annotations
 
-from .lqr import LQGController, LQRController, PassiveController, SkyhookController
+from .lqr import LQGController, LQRController, PassiveController, RateAwareLQGController, SkyhookController
 from .curving_assist import SteeringController
+from .privileged import PrivilegedController
 from .robust import RobustDampingController
 
 #: name -> controller class (each takes the env config).
 CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": LQRController, "lqg": LQGController,
-             "robust_damping": RobustDampingController, "robust_steering": SteeringController}
+             "lqg_rate": RateAwareLQGController,
+             "robust_damping": RobustDampingController, "robust_steering": SteeringController,
+             "privileged": PrivilegedController}

@@ -157,6 +157,34 @@ def lqr_gain(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.n
     return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
 
 
+def lqr_gain_cross(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Discrete LQR with a cross term: cost ``z'Qz + 2 z'S u + u'Ru``, ``u = -K z``."""
+    p = solve_discrete_are(a, b, q, r, s=s)
+    return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a + s.T)
+
+
+def add_rate_cost(q: np.ndarray, r: np.ndarray, n_x: int, delays, bandwidth: np.ndarray, held_force: np.ndarray,
+                  rate_limit: np.ndarray, rate_weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(Q, S, R)`` of a sampled loop plant's LQR cost (:func:`bogie_env.sampled_plant.sampled_loop_plant`
+    order: ``n_x`` bogie states, one force per channel, then the command registers) plus
+    ``rate_weight`` times each channel's squared force rate relative to its limit. The rate is
+    ``w_j (held_force_j u_held - F_j)``, ``u_held`` the channel's oldest register (or, without
+    delay, its command: a cross term). A channel without a rate limit (inf) adds nothing."""
+    n, n_act = q.shape[0], r.shape[0]
+    m_z, m_u = np.zeros((n_act, n)), np.zeros((n_act, n_act))
+    pos = n_x + n_act
+    for j, d in enumerate(delays):
+        m_z[j, n_x + j] = -bandwidth[j]
+        if d == 0:
+            m_u[j, j] = bandwidth[j] * held_force[j]
+        else:
+            m_z[j, pos + d - 1] = bandwidth[j] * held_force[j]
+            pos += d
+    finite = np.isfinite(rate_limit)
+    weight = np.diag(np.where(finite, rate_weight / np.where(finite, rate_limit, 1.0) ** 2, 0.0))
+    return q + m_z.T @ weight @ m_z, m_z.T @ weight @ m_u, r + m_u.T @ weight @ m_u
+
+
 @dataclass
 class DesignPoint:
     speed: float  # m/s
@@ -214,6 +242,17 @@ class LQRController(Controller):
             q_state[state_index(name)] = 1.0 / scale**2
         q = np.diag(np.concatenate([q_state[LAT], 1e-2 / self.max_force**2]))
         return q, self.r * np.eye(self.n_act)
+
+    @property
+    def delays(self) -> list[int]:
+        """Each active channel's command delay, control steps."""
+        return [int(self.config["actuators"][CHANNEL_NAMES[k]]["delay_steps"]) for k in self.active]
+
+    @property
+    def rate_limit(self) -> np.ndarray:
+        """Each active channel's force-rate limit (N/s or N m/s; inf without one)."""
+        limits = [self.config["actuators"][CHANNEL_NAMES[k]].get("rate_limit") for k in self.active]
+        return np.array([np.inf if v is None else float(v) for v in limits])
 
     def _design(self, speed: float) -> DesignPoint:
         a, b = self.continuous_model(speed)
@@ -294,7 +333,14 @@ class LQGController(LQRController):
     #: over a few seconds, much slower than hunting (2-10 Hz)
     bias_time_s = 2.0
 
-    def __init__(self, env_config: dict, sensor_model: bool | None = None, **kwargs) -> None:
+    #: weight of the force-rate cost (:func:`add_rate_cost`); 0: the design without it (``lqg``)
+    rate_weight = 0.0
+
+    def __init__(self, env_config: dict, sensor_model: bool | None = None, rate_weight: float | None = None, **kwargs) -> None:
+        if rate_weight is not None:
+            if not (isinstance(rate_weight, (int, float)) and math.isfinite(rate_weight) and rate_weight >= 0):
+                raise ValueError(f"{self.name}: rate_weight = {rate_weight!r}; allowed: a finite number >= 0")
+            self.rate_weight = float(rate_weight)
         enabled = bool(env_config.get("sensors", {}).get("enabled"))
         self.sensor_model = enabled if sensor_model is None else bool(sensor_model)
         if self.sensor_model and not enabled:
@@ -320,8 +366,14 @@ class LQGController(LQRController):
         q_plant = np.zeros((n_plant, n_plant))
         q_plant[: q.shape[0], : q.shape[0]] = q
         gain = np.zeros((self.n_act, ad.shape[0]))
-        gain[:, :n_plant] = lqr_gain(ad[:n_plant, :n_plant], bd[:n_plant], q_plant, r)
+        if self.rate_weight > 0:
+            q_plant, cross, r = add_rate_cost(q_plant, r, q.shape[0] - self.n_act, self.delays, self.bandwidth, self.max_force,
+                                              self.rate_limit, self.rate_weight)  # fmt: skip
+            gain[:, :n_plant] = lqr_gain_cross(ad[:n_plant, :n_plant], bd[:n_plant], q_plant, r, cross)
+        else:
+            gain[:, :n_plant] = lqr_gain(ad[:n_plant, :n_plant], bd[:n_plant], q_plant, r)
         return DesignPoint(speed, gain, ad, bd, cd=cd)
+
 
     def sampled_model(self, speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """With the sensor model: ``(A, B, C)`` of ``[x_lat, F, command registers, sensor
@@ -329,10 +381,9 @@ class LQGController(LQRController):
         is the six sensors in observation units."""
         a_c, b_c = self.continuous_model(speed)
         c_xf = self.measurement_matrix(speed)
-        delays = [int(self.config["actuators"][CHANNEL_NAMES[k]]["delay_steps"]) for k in self.active]
         rows, weights = sensor_filters(self.config)
         n_s = len(T.SENSORS)
-        a, b, c, _, _ = sampled_loop_plant(a_c, b_c, c_xf, self.dt, delays, rows[:n_s], weights[:n_s])
+        a, b, c, _, _ = sampled_loop_plant(a_c, b_c, c_xf, self.dt, self.delays, rows[:n_s], weights[:n_s])
         n = a.shape[0]
         ad, bd, cd = np.eye(n + n_s), np.zeros((n + n_s, self.n_act)), np.zeros((n_s, n + n_s))
         ad[:n, :n], bd[:n], cd[:, :n] = a, b, c
@@ -400,3 +451,13 @@ class LQGController(LQRController):
         actions = np.clip(-np.einsum("nij,nj->ni", gains, self.estimate), -1.0, 1.0)
         self.last_action = actions
         return actions.astype(np.float32)
+
+
+class RateAwareLQGController(LQGController):
+    """:class:`LQGController` whose LQR cost also weighs each actuator's force rate against its
+    rate limit (:func:`add_rate_cost`): the v1 actuators' 200-400 kN/s limits bind at hunting
+    frequencies (docs/studies/headroom.md), and a design that respects them keeps the loop linear
+    where ``lqg`` saturates. Told and sees what ``lqg`` is told and sees (sensors, conicity class)."""
+
+    name = "lqg_rate"
+    rate_weight = 30.0

@@ -73,6 +73,7 @@ from __future__ import annotations
 
 import copy
 import importlib
+import json
 import math
 import sys
 import time
@@ -422,8 +423,11 @@ class Runner:
         task.seed_rows(rows, [c.seed for c in cases])
         for i, (case, v) in enumerate(zip(cases, speeds)):
             task.reset_rows(np.array([i]), {**case.options, "start_kmh": float(v), "end_kmh": float(v), "accel": 0.0})
-        told = np.array([told_conicity(c.conicity, s.conicities) for c in cases])
-        groups = [(np.nonzero(told == lam)[0], ctx.reused_policy(float(lam), loop)) for lam in np.unique(told)]
+        if ctx.privileged:
+            groups = ctx.scenario_groups(task, loop)
+        else:
+            told = np.array([told_conicity(c.conicity, s.conicities) for c in cases])
+            groups = [(np.nonzero(told == lam)[0], ctx.reused_policy(float(lam), loop)) for lam in np.unique(told)]
         policy = RowGroups(groups, task.action_dim)
         policy.reset(len(cases))
         return task, policy
@@ -591,6 +595,7 @@ class PartContext:
     observation_type: str
     progress: Progress
     n_sub: int | None = None  # the integration substeps of the protocol's tasks, once chosen
+    privileged: bool = False  # the controller is told each row's true scenario (``tell``)
     _policies: dict = field(default_factory=dict)
 
     def task(self, n: int, config: dict) -> HuntingTask:
@@ -615,6 +620,19 @@ class PartContext:
         if key not in self._policies:
             self._policies[key] = self.policy(conicity)
         return self._policies[key]
+
+    def scenario_groups(self, task: HuntingTask, slot: str) -> list[tuple[np.ndarray, Any]]:
+        """A privileged controller's groups: one policy per distinct true scenario of the task's
+        rows (after their reset), told that scenario and the task's loop (``policy.tell``)."""
+        keys = [json.dumps(task.scenario(i), sort_keys=True, default=float) for i in range(task.num_envs)]
+        groups = []
+        for key in dict.fromkeys(keys):
+            rows = np.array([i for i, k in enumerate(keys) if k == key])
+            cache = (key, slot)
+            if cache not in self._policies:
+                self._policies[cache] = self.policy().tell(task.scenarios[int(rows[0])], task.config)
+            groups.append((rows, self._policies[cache]))
+        return groups
 
 
 PartFunction = Callable[[PartContext], dict]
@@ -668,7 +686,8 @@ def critical_part(ctx: PartContext) -> dict[str, Any]:
                                  "the grid, bisected; grid speeds below it where the seed fails are reported in "
                                  "fails_below_kmh and do not lower it"},
         "criterion": criterion_text(s, params.Wpa, params.mb),
-        "told": "model-based controllers are designed for the column's conicity, rounded to the nearest of "
+        "told": "the true scenario of every row (privileged: conicity, degradation, faults, loop delay)" if ctx.privileged else
+                "model-based controllers are designed for the column's conicity, rounded to the nearest of "
                 f"{', '.join(f'{c:g}' for c in s.conicities)}; nothing about degradation, faults or extra delay",
     }  # fmt: skip
     if "nominal" in results:
@@ -782,7 +801,8 @@ def evaluate_policy_v2(source: Any, env_config: Mapping[str, Any] | None = None,
     probe = factory(env_config)
     observation_type = getattr(probe, "observation_type", "sensors")
     name = label or (source if isinstance(source, str) else getattr(probe, "name", type(probe).__name__))
-    ctx = PartContext(factory, env_config, settings, observation_type, Progress(str(name), settings.progress))
+    ctx = PartContext(factory, env_config, settings, observation_type, Progress(str(name), settings.progress),
+                      privileged=bool(getattr(probe, "privileged", False)))
     out: dict[str, Any] = {"policy": name, "observation_type": observation_type, "protocol_version": settings.version}
     if settings.screening:
         out["screening"] = (f"screening, not the protocol: {settings.seeds} seeds, {settings.worst_case_draws} worst-case "

@@ -1,0 +1,146 @@
+"""The privileged reference: how far a controller with the same actuators could go if it knew everything.
+
+:class:`PrivilegedController` (``privileged``) is **not a baseline to beat** and not buildable
+in service. It is the headroom: the closed-loop critical speed that a model-based design reaches
+with the v1 actuators (force and rate limits, lag, loop delay) when it is told the true
+scenario and sees the full state. A sensor-only controller that comes close to it has little
+left to gain; a large gap says a better design could exist.
+
+**What it is told**: the row's true scenario (:class:`bogie_env.envs.scenario.Scenario`: the
+exact conicity, the degraded stiffnesses, dampers, creep and axle load, each channel's gain
+and a failed channel) and the task's loop (its command delay per channel), through
+:meth:`PrivilegedController.tell`, which the protocol calls for every group of rows with the
+same scenario. **What it sees**: the full state (``observation.type = "state"``), no sensor
+noise, bias or filter.
+
+**Design.** Discrete LQR at each design speed on the sampled loop plant the env runs
+(:func:`bogie_env.sampled_plant.sampled_loop_plant`): the lateral states of the scenario's bogie,
+each actuator's 10 Hz lag, the zero-order hold and the command shift registers of the loop
+delay. The actuators' limits enter the cost as soft constraints, each relative to its limit:
+
+- the normalised command ``u`` (``|u| <= 1`` is the force limit), weight ``r``;
+- each channel's force rate, ``dF/dt = w (g F_max u_held - F)`` (a function of the lag and the
+  oldest command register, or of the command itself without delay), relative to the channel's
+  ``rate_limit``, weight ``rate_weight``;
+- the state weights of :class:`bogie_agents.controllers.LQRController`.
+
+The commands, their registers and the lag are replicated inside the controller from the
+commands it gave (it knows them exactly; the env's rate limit may make the true force lag
+further behind). Gains are designed every ``step_kmh`` and interpolated in speed.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+from bogie_env.actuators import CHANNEL_NAMES
+from bogie_env.dynamics import BogieModel
+from bogie_env.envs.config import bogie_params, merge_config
+from bogie_env.envs.scenario import Scenario, scenario_model
+from bogie_env.sampled_plant import sampled_loop_plant
+
+from .lqr import DesignPoint, LQRController, add_rate_cost, lateral_model, lqr_gain_cross
+
+#: Default weights (chosen on the protocol's screening at conicity 0.1-0.3, see
+#: docs/studies/headroom.md); the reference may be tuned: it is not a baseline.
+DEFAULT_R = 1.0
+DEFAULT_RATE_WEIGHT = 10.0
+
+
+class PrivilegedController(LQRController):
+    """LQR on the true scenario's sampled, delay-augmented loop plant, with the actuators'
+    force and rate limits as soft constraints (module docstring). Full-state observation."""
+
+    name = "privileged"
+    observation_type = "state"
+    #: the protocol tells a privileged controller the true scenario of its rows (``tell``)
+    privileged = True
+
+    def __init__(self, env_config: dict, r: float = DEFAULT_R, rate_weight: float = DEFAULT_RATE_WEIGHT,
+                 step_kmh: float = 10.0, scenario: Scenario | None = None, loop_config: Mapping[str, Any] | None = None,
+                 v_range_kmh: tuple[float, float] | None = None) -> None:  # fmt: skip
+        for field, value in (("r", r), ("rate_weight", rate_weight)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0 and (field != "r" or value > 0)):
+                raise ValueError(f"PrivilegedController: {field} = {value!r}; allowed: a finite number "
+                                 f"{'> 0' if field == 'r' else '>= 0'}")  # fmt: skip
+        self.scenario = scenario if scenario is not None else Scenario()
+        self.rate_weight = float(rate_weight)
+        loop = loop_config if loop_config is not None else env_config
+        base = bogie_params(env_config)
+        model = scenario_model(base, self.scenario, BogieModel(base))
+        self._v_range = v_range_kmh
+        # the design reads the delays and rate limits from the loop (the task's config)
+        super().__init__(merge_config(env_config, {"actuators": {n: {k: loop["actuators"][n][k] for k in ("delay_steps", "rate_limit")}
+                                                                 for n in CHANNEL_NAMES}}),
+                         r=r, step_kmh=step_kmh, model=model, v_range_kmh=v_range_kmh)  # fmt: skip
+        self.max_delay = max(self.delays) if self.delays else 0
+        self.history = np.zeros((0, max(1, self.max_delay), self.n_act))
+
+    # ---- what it is told -----------------------------------------------------------------------
+    def tell(self, scenario: Scenario, loop_config: Mapping[str, Any]) -> "PrivilegedController":
+        """A controller designed for ``scenario`` in the loop of ``loop_config`` (the task's config:
+        its command delays), with this one's weights."""
+        return PrivilegedController(self.config, self.r, self.rate_weight, float(self.speeds_kmh[1] - self.speeds_kmh[0])
+                                    if len(self.speeds_kmh) > 1 else 10.0, scenario, loop_config, self._v_range)  # fmt: skip
+
+    @property
+    def channel_gain(self) -> np.ndarray:
+        """Each active channel's true command gain (0 for the failed channel)."""
+        gain = np.array([float(self.scenario.actuator_gain[k]) for k in self.active])
+        if self.scenario.failed_actuator is not None:
+            gain[[CHANNEL_NAMES[k] for k in self.active].index(self.scenario.failed_actuator)] = 0.0
+        return gain
+
+    # ---- design -------------------------------------------------------------------------------
+    def continuous_model(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B) of ``[x_lat, F]``: the scenario's bogie, the lags, the true channel gains."""
+        a, b = lateral_model(self.model, self.lin, speed, self.active, self.bandwidth, self.max_force)
+        return a, b * self.channel_gain[None, :]
+
+    def _design(self, speed: float) -> DesignPoint:
+        a_c, b_c = self.continuous_model(speed)
+        n_x = a_c.shape[0] - self.n_act
+        a, b, _, _, _ = sampled_loop_plant(a_c, b_c, np.zeros((0, a_c.shape[0])), self.dt, self.delays, (), np.zeros(0))
+        q_xf, r = self.weights()
+        n = a.shape[0]
+        q = np.zeros((n, n))
+        q[: q_xf.shape[0], : q_xf.shape[0]] = q_xf
+        q, s, r = add_rate_cost(q, r, n_x, self.delays, self.bandwidth, self.channel_gain * self.max_force,
+                                self.rate_limit, self.rate_weight)  # fmt: skip
+        return DesignPoint(speed, lqr_gain_cross(a, b, q, r, s), a, b)
+
+    # ---- runtime ------------------------------------------------------------------------------
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        super().reset(n_envs, rows)
+        shape = (n_envs, max(1, self.max_delay), self.n_act)
+        if rows is None or self.history.shape != shape:
+            self.history = np.zeros(shape)
+        else:
+            self.history[rows] = 0.0
+
+    def registers(self) -> np.ndarray:
+        """The command registers in the plant's order: per channel, newest to oldest command."""
+        parts = [self.history[:, :d, j] for j, d in enumerate(self.delays) if d > 0]
+        return np.concatenate(parts, axis=1) if parts else np.zeros((self.history.shape[0], 0))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        n = obs.shape[0]
+        if self.force_state.shape[0] != n:
+            self.reset(n)
+        z = np.concatenate([self.state_estimate(obs), self.force_state, self.registers()], axis=1)
+        gains = self.gain_at(self.speed_kmh(obs))
+        actions = np.clip(-np.einsum("nij,nj->ni", gains, z), -1.0, 1.0)
+        self._advance(actions)
+        return actions.astype(np.float32)
+
+    def _advance(self, actions: np.ndarray) -> None:
+        """The loop states one step on, as the design plant has them: each channel's lag driven
+        by its oldest register (or, without delay, the new command), then the registers shift."""
+        held = np.stack([self.history[:, d - 1, j] if d > 0 else actions[:, j] for j, d in enumerate(self.delays)], axis=1)
+        w = np.exp(-self.bandwidth * self.dt)
+        target = held * self.max_force * self.channel_gain
+        self.force_state = target + (self.force_state - target) * w
+        if self.max_delay:
+            self.history = np.concatenate([actions[:, None, :], self.history[:, :-1]], axis=1)

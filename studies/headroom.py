@@ -1,0 +1,116 @@
+"""The headroom and what binds it: the privileged reference's closed-loop critical speed per
+conicity in the v1 loop, and with one limit of the loop relaxed at a time (docs/studies/headroom.md).
+
+    python studies/headroom.py                          # screening (3 seeds), the five worlds, conicity 0.05-0.3
+    python studies/headroom.py --full --world v1        # the protocol's 10 seeds, the v1 loop only
+    python studies/headroom.py --policy robust_steering # any controller in the same worlds
+    python studies/headroom.py --weights 0.3,1,3 --rate-weights 10,100   # the reference's weights
+
+Worlds (each relaxes one thing of the v1 loop; the protocol is unchanged):
+
+- ``v1``: the loop as it is;
+- ``force_x10``: every channel's force limit x10 (the rate limit unchanged);
+- ``no_rate_limit``: no force-rate limit;
+- ``no_delay``: no command delay (``delay_steps`` 0);
+- ``perfect_track``: no track irregularity;
+- ``no_sensor_noise``: no sensor noise (a full-state controller such as the reference sees no
+  sensors, so this world only matters for sensor-based controllers).
+
+The reference's linear prediction (the speed where its designed closed loop on the sampled
+plant loses stability, no limits) is printed beside the nonlinear protocol's value.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import time
+from typing import Any
+
+import numpy as np
+
+from bogie_agents.evaluation import stability_protocol as sp
+from bogie_agents.controllers.privileged import DEFAULT_R, DEFAULT_RATE_WEIGHT, PrivilegedController
+from bogie_env.actuators import CHANNEL_NAMES
+from bogie_env.envs.config import make_config
+from bogie_env.envs.scenario import Scenario
+from bogie_env.envs.sensors import SENSOR_NAMES
+
+
+def worlds(base: dict) -> dict[str, dict[str, Any]]:
+    """The v1 loop and each single relaxation of it (config overlays)."""
+    acts = base["actuators"]
+    return {
+        "v1": {},
+        "force_x10": {"actuators": {n: {"max_force": acts[n]["max_force"] * 10} for n in CHANNEL_NAMES}},
+        "no_rate_limit": {"actuators": {n: {"rate_limit": None} for n in CHANNEL_NAMES}},
+        "no_delay": {"actuators": {n: {"delay_steps": 0} for n in CHANNEL_NAMES}},
+        "perfect_track": {"track": {"level": None, "rms": 0.0}},
+        "no_sensor_noise": {"sensors": {n: {"noise_density": 0.0} for n in SENSOR_NAMES}, "observation": {"noise": 0.0}},
+    }
+
+
+def linear_limit_kmh(controller: PrivilegedController, conicity: float, speeds_kmh: np.ndarray) -> float | None:
+    """The lowest design speed at which the reference's own closed loop (sampled plant, no
+    limits, no noise) is unstable for ``conicity`` (None: stable at every speed)."""
+    told = controller.tell(Scenario(conicity=conicity), controller.config)
+    for v in speeds_kmh:
+        if np.max(np.abs(told.closed_loop_eigenvalues(float(v)))) >= 1.0:
+            return float(v)
+    return None
+
+
+def run(policy: str, world: dict, conicities: list[float], full: bool, r: float, rate_weight: float) -> dict[str, float]:
+    env = make_config(copy.deepcopy(world), variant="v1")
+    cols = tuple("nominal" if np.isclose(c, 0.025) else f"conicity:{c:g}" for c in conicities)
+    settings = sp.Settings(columns=cols, progress=False) if full else sp.screening_settings(columns=cols, progress=False)
+    source: Any = policy
+    if policy == "privileged":
+        source = lambda cfg: PrivilegedController(cfg, r=r, rate_weight=rate_weight)  # noqa: E731
+    res = sp.evaluate_policy_v2(source, env, settings, parts=("critical",), label=policy)
+    return {k: v["kmh"] for k, v in res["by_conicity"].items()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--policy", default="privileged")
+    parser.add_argument("--world", action="append", help="world names (default: all)")
+    parser.add_argument("--conicity", default="0.05,0.1,0.2,0.3")
+    parser.add_argument("--full", action="store_true", help="the protocol's 10 seeds (default: screening, 3 seeds)")
+    parser.add_argument("--weights", default=str(DEFAULT_R), help="the reference's command weights r, comma-separated")
+    parser.add_argument("--rate-weights", default=str(DEFAULT_RATE_WEIGHT), help="its force-rate weights, comma-separated")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    conicities = [float(c) for c in args.conicity.split(",")]
+    all_worlds = worlds(make_config(variant="v1"))
+    names = args.world or list(all_worlds)
+    unknown = [n for n in names if n not in all_worlds]
+    if unknown:
+        raise SystemExit(f"--world {unknown}: unknown; allowed: {', '.join(all_worlds)}")
+    rows = []
+    for r in (float(x) for x in args.weights.split(",")):
+        for q in (float(x) for x in args.rate_weights.split(",")):
+            for name in names:
+                start = time.monotonic()
+                values = run(args.policy, all_worlds[name], conicities, args.full, r, q)
+                row = {"policy": args.policy, "world": name, "r": r, "rate_weight": q, "kmh": values,
+                       "seconds": round(time.monotonic() - start)}  # fmt: skip
+                rows.append(row)
+                if not args.json:
+                    cells = " ".join(f"{k}:{v:.1f}" for k, v in values.items())
+                    print(f"{args.policy} r={r:g} rate_weight={q:g} {name:16s} {cells} ({row['seconds']} s)", flush=True)
+    if args.policy == "privileged":
+        reference = PrivilegedController(make_config(variant="v1"), r=float(args.weights.split(",")[0]),
+                                         rate_weight=float(args.rate_weights.split(",")[0]))  # fmt: skip
+        speeds = np.arange(100.0, 700.0 + 1e-9, 10.0)
+        linear = {f"{c:g}": linear_limit_kmh(reference, c, speeds) for c in conicities}
+        rows.append({"linear_unstable_from_kmh": linear})
+        if not args.json:
+            print("linear prediction (first unstable design speed, km/h):", json.dumps(linear))
+    if args.json:
+        print(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
