@@ -22,7 +22,7 @@ delay. The actuators' limits enter the cost as soft constraints, each relative t
 - each channel's force rate, ``dF/dt = w (g F_max u_held - F)`` (a function of the lag and the
   oldest command register, or of the command itself without delay), relative to the channel's
   ``rate_limit``, weight ``rate_weight``;
-- the state weights of :class:`bogie_agents.controllers.LQRController`.
+- the state weights of :class:`bogie_agents.controllers.lqr.LQRController`.
 
 The commands, their registers and the lag are replicated inside the controller from the
 commands it gave (it knows them exactly; the env's rate limit may make the true force lag
