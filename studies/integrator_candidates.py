@@ -33,12 +33,17 @@ Parts:
    error of y1 at the env steps over the reference's max |y1|), the limit-cycle amplitude at
    450 km/h on perfect track, and the onset speed of a 1 m/s^2 ramp from 300 km/h on a 0.5 mm
    rms track (``studies/step_accuracy.py``'s ramp).
-4. ``cost``: right-hand sides, matrix-vector products (20 x 20) and their flops per env step, and
+4. ``env``: the v1 ramp's hunting onset in the env (``studies/step_convergence.py``'s measured
+   table: passive, and the gain-scheduled LQR with one and two steps of delay) with RK4 at 10
+   and 20 substeps and with the 10-stage Taylor method (``integration.method: taylor10``, v2)
+   at 2 and 4, against RK4 at 40.
+5. ``cost``: right-hand sides, matrix-vector products (20 x 20) and their flops per env step, and
    the measured time of a compiled single-row step of each (``--part cost``).
 
     python studies/integrator_candidates.py --part spectral
     python studies/integrator_candidates.py --part critical
     python studies/integrator_candidates.py --part nonlinear
+    python studies/integrator_candidates.py --part env
     python studies/integrator_candidates.py --part cost
 """
 
@@ -495,6 +500,62 @@ def nonlinear_part(n_subs: list[int], methods: list[str], quick: bool) -> None:
 
 
 # ---------------------------------------------------------------------------------
+# Part 5: the env's closed loop (studies/step_convergence.py's measured table, per method)
+# ---------------------------------------------------------------------------------
+
+
+def env_onsets(controller: str, conicity: float, method: str, n_sub: int, delay_steps: int, seeds: list[int]) -> np.ndarray:
+    """Hunting onset (km/h) of each seed on the v1 ramp with the env's integrator ``method``
+    (``integration.method``) at ``n_sub`` substeps; 600 where none was detected. The set-up of
+    ``studies/step_convergence.py``: passive bogie, or the gain-scheduled LQR on the full state."""
+    from bogie_agents.controllers import LQRController
+    from bogie_env.envs.config import make_config
+    from bogie_env.envs.task import HuntingTask
+
+    acts = {"delay_steps": delay_steps}
+    config = {
+        "randomize": {},
+        "integration": {"n_sub": n_sub, "method": method},
+        "actuators": {name: acts for name in ("frame_lateral", "frame_yaw", "wheelset1_yaw", "wheelset2_yaw")},
+    }
+    if controller == "lqr":
+        config.update(observation={"type": "state"}, sensors={"enabled": False})
+    cfg = make_config(config, variant="v1_passive" if controller == "passive" else "v1")
+    task = HuntingTask(len(seeds), cfg)
+    task.seed_rows(np.arange(len(seeds)), seeds)
+    task.reset_rows(np.arange(len(seeds)), {"conicity": conicity})
+    policy = None
+    if controller == "lqr":
+        policy = LQRController(cfg, model=BogieModel(task.base_params.replace(lam=conicity)))
+        policy.reset(len(seeds))
+    done = np.zeros(len(seeds), dtype=bool)
+    while not np.all(done):
+        actions = policy.act(task.obs) if policy else np.zeros((len(seeds), task.action_dim))
+        task.step(actions)
+        done |= task.done
+    onset = task.onset_speed_kmh.copy()
+    return np.where(np.isnan(onset), cfg["speed"]["end_kmh"], onset)
+
+
+def env_part(quick: bool) -> None:
+    conicities = [0.025, 0.1] if quick else [0.025, 0.05, 0.1, 0.2, 0.3]
+    seeds = [0, 1] if quick else [0, 1, 2, 3]
+    steps = (("rk4", 10), ("rk4", 20), ("taylor10", 2), ("taylor10", 4), ("rk4", 40))
+    print(f"hunting onset on the v1 ramp, mean over seeds {seeds} (km/h): RK4 at 10 (v1) and 20 substeps, the 10-stage Taylor"
+          " method at 2 (v2) and 4, RK4 at 40 (reference)")
+    print(f"{'controller':<10} {'conicity':>8} {'delay':>5}  " + "  ".join(f"{m}x{n:<3d}" for m, n in steps)
+          + "  |v2 - v2 half| |v2 - ref| |v1 - ref|")  # fmt: skip
+    for controller, delays in (("passive", [1]), ("lqr", [1, 2])):
+        for lam in conicities:
+            for delay in delays:
+                t0 = time.perf_counter()
+                means = [float(np.mean(env_onsets(controller, lam, m, n, delay, seeds))) for m, n in steps]
+                print(f"{controller:<10} {lam:>8g} {delay * 10:>3d}ms  " + "  ".join(f"{x:11.1f}" for x in means)
+                      + f"  {abs(means[2] - means[3]):13.2f} {abs(means[2] - means[4]):10.2f} {abs(means[0] - means[4]):10.2f}"
+                      + f"   ({time.perf_counter() - t0:.0f} s)", flush=True)  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------
 # Part 4: cost
 # ---------------------------------------------------------------------------------
 
@@ -556,7 +617,7 @@ def cost_part() -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--part", choices=("spectral", "critical", "closed-loop", "nonlinear", "cost"), required=True)
+    parser.add_argument("--part", choices=("spectral", "critical", "closed-loop", "nonlinear", "env", "cost"), required=True)
     parser.add_argument("--gains", default="1,3", help="closed-loop: factors on the LQR gain")
     parser.add_argument("--n-sub", default="1,2,5,10", help="substeps per 10-ms env step, comma-separated")
     parser.add_argument("--methods", default=",".join(METHODS))
@@ -573,6 +634,8 @@ def main() -> None:
         closed_loop_part(n_subs, methods, [float(g) for g in args.gains.split(",")])
     elif args.part == "nonlinear":
         nonlinear_part(n_subs, methods, args.quick)
+    elif args.part == "env":
+        env_part(args.quick)
     else:
         cost_part()
 
