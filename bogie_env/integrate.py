@@ -9,6 +9,10 @@ by one control interval ``dt`` in ``n_sub`` classic RK4 substeps. Within the int
 - the actuator channels act as :mod:`bogie_env.actuators` says: lagged force minus lagged
   damping times the channel's relative velocity, saturated, mapped to the generalised forces.
 
+:func:`_advance_lanes_taylor` does the same with an S-stage explicit method whose stability
+polynomial is exp's degree-S Taylor polynomial (``integration.method: taylor10``,
+``Bogie/Hunting-v2``; ``docs/studies/integrator.md``); the criteria below take its stage count.
+
 The one batch driver over rows is :mod:`bogie_env.simulator`. The step size is chosen from
 the measured spectrum (:func:`stable_substep`): every eigenvalue of the linearised model over
 the speed range, on and off the flange, must lie inside RK4's stability region with a 5 %
