@@ -1,9 +1,10 @@
-"""The cost of v1: env steps per second of Bogie/Hunting-v1 against -v0, at N=1 and N=4096, in one run.
+"""The cost of v1 and v2: env steps per second of Bogie/Hunting-v1 and -v2 against -v0, at N=1 and N=4096, in one run.
 
 Each case steps the task (``HuntingTask``, the compiled batch step both front-ends use) with
 zero actions for at least ``--seconds`` after a warm-up, episodes reset in place when done.
 v1 integrates with more substeps (accuracy criterion), adds the sensor model and the
-scenario's actuator health; the ratio is the cost of those.
+scenario's actuator health; the ratio is the cost of those. v2 is v1 with the 10-stage Taylor
+integrator at 2 substeps (20 right-hand sides per env step against v1's 40).
 
 ``--cpu`` instead reports env steps per CPU second on the calling thread, for comparing trees on
 a busy host: per tree and round a fresh process (``PYTHONPATH=tree``, ``BOGIE_NUM_THREADS=1``)
@@ -35,7 +36,7 @@ def rate(variant: str | None, n: int, seconds: float) -> tuple[float, int]:
     return steps_per_second(task, seconds), task.n_sub
 
 
-CASES = (("v0", 1, 2000), ("v1", 1, 1000), ("v0", 4096, 20), ("v1", 4096, 6))  # variant, N, steps per chunk
+CASES = (("v0", 1, 2000), ("v1", 1, 1000), ("v2", 1, 1000), ("v0", 4096, 20), ("v1", 4096, 6), ("v2", 4096, 10))  # variant, N, steps per chunk
 
 
 def measure(chunks: int) -> dict:
@@ -82,7 +83,8 @@ def cpu_main(args: argparse.Namespace) -> None:
     for tree in args.trees:
         med = {k: statistics.median(f[k] for f in runs[tree]) for k in runs[tree][0]}
         line = ", ".join(f"{k} {v / 1e3:.0f}" for k, v in med.items())
-        ratios = ", ".join(f"v0/v1 N{n} {med[f'v0_N{n}'] / med[f'v1_N{n}']:.2f}" for n in (1, 4096))
+        ratios = ", ".join(f"v0/v1 N{n} {med[f'v0_N{n}'] / med[f'v1_N{n}']:.2f}, v2/v1 N{n} {med[f'v2_N{n}'] / med[f'v1_N{n}']:.2f}"
+                           for n in (1, 4096))  # fmt: skip
         vs = ""
         if tree != base:
             bmed = {k: statistics.median(f[k] for f in runs[base]) for k in runs[base][0]}
@@ -103,11 +105,15 @@ def main() -> None:
     if args.cpu:
         cpu_main(args)
         return
-    print(f"{'N':>6} {'v0 steps/s':>12} {'v1 steps/s':>12} {'v0/v1':>6}  substeps v0, v1")
+    print(f"load average {os.getloadavg()[0]:.2f}")
+    print(f"{'N':>6} {'v0 steps/s':>12} {'v1 steps/s':>12} {'v2 steps/s':>12} {'v0/v1':>6} {'v2/v1':>6} {'v2/v0':>6}  substeps v0, v1, v2")
     for n in args.sizes:
         v0, sub0 = rate(None, n, args.seconds)
         v1, sub1 = rate("v1", n, args.seconds)
-        print(f"{n:>6} {v0:>12.0f} {v1:>12.0f} {v0 / v1:>6.2f}  {sub0}, {sub1}", flush=True)
+        v2, sub2 = rate("v2", n, args.seconds)
+        print(f"{n:>6} {v0:>12.0f} {v1:>12.0f} {v2:>12.0f} {v0 / v1:>6.2f} {v2 / v1:>6.2f} {v2 / v0:>6.2f}  {sub0}, {sub1}, {sub2}",
+              flush=True)  # fmt: skip
+    print(f"load average {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":

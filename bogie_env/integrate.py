@@ -9,6 +9,10 @@ by one control interval ``dt`` in ``n_sub`` classic RK4 substeps. Within the int
 - the actuator channels act as :mod:`bogie_env.actuators` says: lagged force minus lagged
   damping times the channel's relative velocity, saturated, mapped to the generalised forces.
 
+:func:`_advance_lanes_taylor` does the same with an S-stage explicit method whose stability
+polynomial is exp's degree-S Taylor polynomial (``integration.method: taylor10``,
+``Bogie/Hunting-v2``; ``docs/studies/integrator.md``); the criteria below take its stage count.
+
 The one batch driver over rows is :mod:`bogie_env.simulator`. The step size is chosen from
 the measured spectrum (:func:`stable_substep`): every eigenvalue of the linearised model over
 the speed range, on and off the flange, must lie inside RK4's stability region with a 5 %
@@ -23,7 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .actuators import N_CHANNELS, channel_lags, channel_output, channel_velocity, generalised_forces, saturated_output
+from .actuators import (
+    CH_DECAY_RATE, N_CHANNELS, channel_lags, channel_output, channel_velocity, generalised_forces, saturated_output,
+)  # fmt: skip
 from .dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, BogieModel, _cant_trig, _rhs_lanes, check_speed, rhs_single_kernel
 from .track import N_TRACK_SAMPLES, sample_track
 
@@ -60,6 +66,34 @@ def _same_row(weights, a, b):
         if weights[a, k] != weights[b, k]:
             return False
     return True
+
+
+#: Integration methods (``integration.method``) and their stages per substep: classic RK4 (v0, v1),
+#: or an S-stage explicit method whose stability polynomial is exp's degree-S Taylor polynomial
+#: (:func:`_advance_lanes_taylor`; v2: 10 stages). The kernels take the stage count, 0 for RK4.
+METHOD_STAGES: dict[str, int] = {"rk4": 0, "taylor10": 10}
+
+
+@njit(cache=True, inline="always")
+def taylor_stage_time(stage, stages):
+    """The time, in substeps, of the state stage ``stage`` (0 .. stages - 1) of the S-stage Taylor
+    method evaluates: 0, then 1/S, 1/(S-1), ..., 1/2 (:func:`_advance_lanes_taylor`)."""
+    if stage == 0:
+        return 0.0
+    return 1.0 / (stages + 1 - stage)
+
+
+@njit(cache=True)
+def taylor_lag_weights(table, dt, n_sub, stages, weights):
+    """:func:`bogie_env.actuators.lag_weights` for the S-stage Taylor method: row ``stages j + k``
+    at the time of stage k of substep j, row ``stages n_sub`` at dt."""
+    h = dt / n_sub
+    for k in range(N_CHANNELS):
+        rate = table[k, CH_DECAY_RATE]
+        for j in range(n_sub):
+            for stage in range(stages):
+                weights[stages * j + stage, k] = math.exp(-rate * (j * h + taylor_stage_time(stage, stages) * h))
+        weights[stages * n_sub, k] = math.exp(-rate * dt)
 
 
 @njit(cache=True, inline="always")
@@ -160,6 +194,83 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
                 status[lane] = STATUS_NONFINITE
 
 
+@njit(cache=True, inline="always")
+def _advance_lanes_taylor(x, v0, accel, s0, dt, n_sub, stages, lag, target, weights, channels, track, p, out, status, scratch):
+    """:func:`_advance_lanes` with the S-stage Taylor method (``stages`` = S) instead of RK4.
+
+    Each substep of h is ``y_0 = x``, ``y_k = x + h / (S + 1 - k) f(y_{k-1})`` (k = 1 .. S), and
+    ``x <- y_S`` (Jameson's form): on a linear system ``x' = J x`` that is exactly
+    ``x <- sum_{k <= S} (h J)^k / k! x``, exp's Taylor polynomial of degree S, which keeps the
+    lightly damped wheelset modes' decay rates within 10 % at 2 substeps per 10 ms for S = 10
+    (RK4 needs 10: ``docs/studies/integrator.md``); on nonlinear and time-dependent terms the method is
+    of second order. Stage k evaluates the right-hand side at ``t + c_k h``,
+    ``c_k`` = :func:`taylor_stage_time`, with the channels' lag weights of row ``S j + k``
+    (:func:`taylor_lag_weights`). The mean power is the midpoint rule: the last stage's, at
+    ``t + h / 2``. One stage derivative (``scratch[K1]``) is all the method stores.
+    """
+    lanes = x.shape[1]
+    h = dt / n_sub
+    xs = scratch[XS]
+    u = scratch[U]
+    q = scratch[Q]
+    yt = scratch[YT]
+    trig = scratch[TRIG]
+    speed = scratch[SPEED, 0]
+    k1 = scratch[K1]
+    for lane in range(lanes):
+        for k in range(N_CHANNELS):
+            out[lane, OUT_POWER, k] = 0.0
+    t_sampled = -1.0
+    lagged = scratch[LAGGED]
+    w_lagged = -1
+    for j in range(n_sub):
+        t = j * h
+        for i in range(N_STATES):
+            for lane in range(lanes):
+                xs[i, lane] = x[i, lane]
+        for stage in range(stages):
+            ts = t + taylor_stage_time(stage, stages) * h
+            w_row = stages * j + stage
+            weight = weights[w_row]
+            relag = w_lagged < 0 or (w_row != w_lagged and not _same_row(weights, w_row, w_lagged))
+            w_lagged = w_row
+            resample = ts != t_sampled
+            t_sampled = ts
+            for lane in range(lanes):
+                for k in range(N_CHANNELS):
+                    if relag:
+                        lagged[k, lane], lagged[N_CHANNELS + k, lane] = channel_lags(k, weight, lag[lane], target[lane], channels)
+                    u[k, lane] = saturated_output(xs[:, lane], k, lagged[k, lane], lagged[N_CHANNELS + k, lane], channels)
+                generalised_forces(u[:, lane], q[:, lane])
+                if resample:
+                    sample_track(track, s0[lane] + v0[lane] * ts + 0.5 * accel[lane] * ts * ts, p[P_L1, lane], yt[:, lane])
+                    cos_sin = _cant_trig(yt[:, lane])
+                    for k in range(6):
+                        trig[k, lane] = cos_sin[k]
+                speed[lane] = v0[lane] + accel[lane] * ts
+            _rhs_lanes(xs, speed, q, yt, trig, p, k1, scratch[FRAME])
+            if stage == stages - 1:
+                for lane in range(lanes):
+                    _add_power(out[lane, OUT_POWER], u[:, lane], xs[:, lane], 1.0)
+            step = h / (stages - stage)
+            for i in range(N_STATES):
+                for lane in range(lanes):
+                    xs[i, lane] = x[i, lane] + step * k1[i, lane]
+        for i in range(N_STATES):
+            for lane in range(lanes):
+                x[i, lane] = xs[i, lane]
+    last = weights.shape[0] - 1
+    for lane in range(lanes):
+        for k in range(N_CHANNELS):
+            out[lane, OUT_POWER, k] /= n_sub
+        for k in range(N_CHANNELS):
+            out[lane, OUT_FORCE, k] = channel_output(x[:, lane], k, weights[last], lag[lane], target[lane], channels)
+        status[lane] = STATUS_OK
+        for i in range(N_STATES):
+            if not math.isfinite(x[i, lane]):
+                status[lane] = STATUS_NONFINITE
+
+
 # ---------------------------------------------------------------------------------
 # Step-size selection from the spectrum
 # ---------------------------------------------------------------------------------
@@ -169,6 +280,22 @@ def rk4_amplification(z: np.ndarray) -> np.ndarray:
     """|R(z)| of classic RK4, R(z) = 1 + z + z^2/2 + z^3/6 + z^4/24."""
     z = np.asarray(z, dtype=complex)
     return np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
+
+
+def taylor_polynomial(z: np.ndarray, stages: int) -> np.ndarray:
+    """R(z) of the S-stage Taylor method, ``sum_{k <= S} z^k / k!`` (Horner)."""
+    z = np.asarray(z, dtype=complex)
+    r = np.ones_like(z)
+    for k in range(stages, 0, -1):
+        r = 1 + z / k * r
+    return r
+
+
+def amplification(z: np.ndarray, stages: int = 0) -> np.ndarray:
+    """|R(z)| of the method with ``stages`` (:data:`METHOD_STAGES`; 0: classic RK4)."""
+    if stages == 0:
+        return rk4_amplification(z)
+    return np.abs(taylor_polynomial(z, stages))
 
 
 def spectrum(model: BogieModel, speeds: np.ndarray, flange: bool = True, extra_jacobian: np.ndarray | None = None) -> np.ndarray:
@@ -208,12 +335,14 @@ def stable_substep(
     margin: float = 1.05,
     n_speeds: int = 7,
     extra_jacobian: np.ndarray | None = None,
+    stages: int = 0,
 ) -> StepChoice:
     """The fewest RK4 substeps per ``dt`` that keep every eigenvalue stable with a margin.
 
     The eigenvalues over ``[v_min, v_max]`` (m/s), at the equilibrium and in flange contact,
     scaled by ``margin * h``, must lie in RK4's stability region ``|R(z)| <= 1`` (or grow no
     faster than the exact ``exp(z)`` for the few eigenvalues in the right half-plane).
+    ``stages`` > 0: the same for the S-stage Taylor method (:data:`METHOD_STAGES`).
     """
     check_speed(v_min, "v_min")
     check_speed(v_max, "v_max")
@@ -223,7 +352,7 @@ def stable_substep(
         h = dt / n_sub
         z = margin * h * eigenvalues
         # Growing modes (the hunting mode above the critical speed) may grow, as they truly do.
-        if np.all(rk4_amplification(z) <= np.maximum(1.0, np.exp(z.real)) + 1e-12):
+        if np.all(amplification(z, stages) <= np.maximum(1.0, np.exp(z.real)) + 1e-12):
             return StepChoice(h, n_sub, float(np.max(np.abs(eigenvalues))), margin)
     raise RuntimeError("stable_substep: no stable step found")
 
@@ -279,18 +408,29 @@ def rk4_effective_eigenvalue(eigenvalues: np.ndarray, h: float) -> np.ndarray:
     return np.log(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24) / h
 
 
-def eigenvalue_errors(eigenvalues: np.ndarray, h: float, zeta_max: float = 0.5) -> tuple[float, float]:
+def taylor_effective_eigenvalue(eigenvalues: np.ndarray, h: float, stages: int) -> np.ndarray:
+    """The eigenvalue the S-stage Taylor method with step h reproduces, ``log(R(h lambda)) / h``,
+    on the branch nearest ``lambda``: a mode above half the substep's sampling rate
+    (``|Im(lambda)| h > pi``, e.g. 100 Hz at 5-ms substeps) is aliased by the principal logarithm."""
+    lam = np.asarray(eigenvalues, dtype=complex)
+    lam_h = np.log(taylor_polynomial(h * lam, stages)) / h
+    turns = np.round((lam.imag - lam_h.imag) * h / (2 * np.pi))
+    return lam_h + 2j * np.pi * turns / h
+
+
+def eigenvalue_errors(eigenvalues: np.ndarray, h: float, zeta_max: float = 0.5, stages: int = 0) -> tuple[float, float]:
     """Largest relative errors of RK4's decay rate and frequency over the lightly damped modes.
 
     A mode counts if its damping ratio is below ``zeta_max``. The decay-rate error is
     ``|Re(l_h) - Re(l)| / max(|Re(l)|, 0.01 |l|)`` (a mode at the edge of stability is held to
-    1 % of its frequency), the frequency error ``|Im(l_h) - Im(l)| / |Im(l)|``.
+    1 % of its frequency), the frequency error ``|Im(l_h) - Im(l)| / |Im(l)|``. ``stages`` > 0:
+    the S-stage Taylor method's errors instead (:func:`taylor_effective_eigenvalue`).
     """
     lam = np.asarray(eigenvalues, dtype=complex)
     lam = lam[(np.abs(lam.imag) > 0) & (-lam.real < zeta_max * np.abs(lam))]
     if lam.size == 0:
         return 0.0, 0.0
-    lam_h = rk4_effective_eigenvalue(lam, h)
+    lam_h = rk4_effective_eigenvalue(lam, h) if stages == 0 else taylor_effective_eigenvalue(lam, h, stages)
     lam_h = np.where(np.sign(lam_h.imag) == np.sign(lam.imag), lam_h, np.conj(lam_h))
     decay = np.abs(lam_h.real - lam.real) / np.maximum(np.abs(lam.real), 0.01 * np.abs(lam))
     freq = np.abs(lam_h.imag - lam.imag) / np.abs(lam.imag)
@@ -305,6 +445,7 @@ def accurate_substep(
     tolerance: float = 0.1,
     n_speeds: int = 7,
     extra_jacobian: np.ndarray | None = None,
+    stages: int = 0,
 ) -> StepChoice:
     """The fewest RK4 substeps per ``dt`` that are stable (:func:`stable_substep`) and keep the
     decay rate and frequency of every lightly damped mode (damping ratio < 0.5) within
@@ -312,13 +453,14 @@ def accurate_substep(
 
     Stability alone lets RK4 damp the lightly damped wheelset modes (about 85 Hz) several times
     more than they are damped, which hides instabilities of a loop with delay or gain error;
-    this criterion bounds that error.
+    this criterion bounds that error. ``stages`` > 0: the same criterion for the S-stage Taylor
+    method (:data:`METHOD_STAGES`).
     """
-    stable = stable_substep(model, v_min, v_max, dt, n_speeds=n_speeds, extra_jacobian=extra_jacobian)
+    stable = stable_substep(model, v_min, v_max, dt, n_speeds=n_speeds, extra_jacobian=extra_jacobian, stages=stages)
     speeds = np.linspace(v_min, v_max, n_speeds)
     eigenvalues = spectrum(model, speeds, extra_jacobian=extra_jacobian).ravel()
     for n_sub in range(stable.n_sub, 10_000):
         h = dt / n_sub
-        if max(eigenvalue_errors(eigenvalues, h)) <= tolerance:
+        if max(eigenvalue_errors(eigenvalues, h, stages=stages)) <= tolerance:
             return StepChoice(h, n_sub, stable.spectral_radius, stable.margin)
     raise RuntimeError("accurate_substep: no accurate step found")

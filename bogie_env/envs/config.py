@@ -28,6 +28,11 @@ OBSERVATION_TYPES = ("sensors", "state")
 #: of every lightly damped mode within ``integration.tolerance``; v1). ``integration.n_sub``
 #: fixes the substeps per env step instead (convergence studies).
 STEP_CRITERIA = ("stability", "accuracy")
+#: The integration method (``integration.method``): "rk4", classic RK4 (v0, v1), or "taylor10",
+#: a 10-stage explicit method whose stability polynomial is exp's degree-10 Taylor polynomial
+#: (v2; ``bogie_env.integrate._advance_lanes_taylor``, docs/studies/integrator.md). The step
+#: criterion applies to the method chosen.
+INTEGRATION_METHODS = ("rk4", "taylor10")
 _ACTUATOR_DEFAULTS = {c.name: dict(c.defaults) for c in ACTUATOR_CHANNELS}
 
 
@@ -81,7 +86,7 @@ def default_config() -> dict[str, Any]:
         # the sensor model of the "sensors" observation (envs/sensors.py); off in v0. noise_scale and
         # bias_scale multiply every channel's noise_density and bias (0: no noise / no bias)
         "sensors": default_sensor_config(),
-        "integration": {"step_criterion": "stability", "tolerance": 0.1, "n_sub": None},
+        "integration": {"step_criterion": "stability", "tolerance": 0.1, "n_sub": None, "method": "rk4"},
         # wear_weight, flange_weight: the curving penalties of the route variant (0: off); the wear
         # penalty is min(mean wheelset wear number / wear_reference, 1), wear_reference in N
         "reward": {"lateral_weight": 0.5, "yaw_weight": 0.2, "effort_weight": 0.2, "time_weight": 0.0,
@@ -248,6 +253,8 @@ def validate(config: dict) -> dict:
     if ig["step_criterion"] not in STEP_CRITERIA:
         raise ConfigError(f"config 'integration.step_criterion' = {ig['step_criterion']!r} is not allowed; allowed: {', '.join(STEP_CRITERIA)}")
     ig["tolerance"] = _number("integration.tolerance", ig["tolerance"], 0.0, 1.0, low_open=True)
+    if ig["method"] not in INTEGRATION_METHODS:
+        raise ConfigError(f"config 'integration.method' = {ig['method']!r} is not allowed; allowed: {', '.join(INTEGRATION_METHODS)}")
     n_sub = ig["n_sub"]
     if n_sub is not None and (isinstance(n_sub, bool) or not isinstance(n_sub, int) or not 1 <= n_sub <= 1000):
         raise ConfigError(f"config 'integration.n_sub' = {n_sub!r} must be null or an integer in [1, 1000]")
@@ -343,6 +350,16 @@ VARIANTS.update({
     "v1_passive": _v1(passive_actuators()),
     "v1_semi_active": _v1(semi_active_actuators()),
     "v1_slow_ramp": _v1(copy.deepcopy(_ACTUATOR_DEFAULTS), speed={"accel": 0.1}),
+})
+#: v2 (Bogie/Hunting-v2): v1's task integrated with the 10-stage Taylor method, the substeps chosen
+#: by the same accuracy criterion (2 per 10-ms step: 20 right-hand sides, RK4 needs 40).
+def _v2(actuators: dict[str, Any]) -> dict[str, Any]:
+    return {**_v1(actuators), "integration": {"step_criterion": "accuracy", "method": "taylor10"}}
+
+
+VARIANTS.update({
+    "v2": _v2(copy.deepcopy(_ACTUATOR_DEFAULTS)),
+    "v2_passive": _v2(passive_actuators()),
 })
 
 

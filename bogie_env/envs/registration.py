@@ -45,6 +45,10 @@ IDS: dict[str, str | None] = {
     # wear and flange contact in the reward and a Y/Q termination
     "Bogie/HuntingRoute-v1": "v1_route",
     "Bogie/HuntingRoutePassive-v1": "v1_route_passive",
+    # v1's task with the 10-stage Taylor integrator at the same accuracy criterion: 20
+    # right-hand sides per env step instead of 40 (docs/studies/integrator.md)
+    "Bogie/Hunting-v2": "v2",
+    "Bogie/HuntingPassive-v2": "v2_passive",
 }
 
 

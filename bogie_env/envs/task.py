@@ -45,7 +45,7 @@ from ..actuators import (
     saturation,
 )
 from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, _guiding_forces_row, rhs_row_call, state_index
-from ..integrate import FASTMATH, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, stable_substep
+from ..integrate import FASTMATH, METHOD_STAGES, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, stable_substep
 from ..params import BogieParams, ConfigError
 from ..simulator import (
     M_ACCEL,
@@ -335,11 +335,11 @@ def _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, 
 
 # Not inlined: the serial call and the parallel loop run this one compilation of a run of rows.
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health):
+def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health):
     """One env step of rows [start, stop): actions -> commands (through each row's actuator
     health) -> the simulator's interval -> task."""
     _commands(start, stop, sim_rows, channels, action, health)
-    advance_rows(start, stop, sim_rows, channels, track, dt, n_sub)
+    advance_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages)
     scratch = np.empty((2, N_STATES))
     details = np.empty((2, len(DETAIL_NAMES)))
     _task_run(start, stop, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, details)
@@ -377,31 +377,31 @@ def _clip_actions(action, out):
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health):
+def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health):
     """Check and clip the actions, then one env step of every row on the calling thread;
     returns -1, or the flat index of a non-finite action (nothing stepped)."""
     bad = _clip_actions(action_in, action)
     if bad < 0:
-        _step_rows(np.int64(0), action.shape[0], sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales,
+        _step_rows(np.int64(0), action.shape[0], sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales,
                    health)  # int64 as in the parallel loop: one compiled signature
     return bad
 
 
 @njit(cache=True, fastmath=FASTMATH, parallel=True)
-def _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health):
+def _step_parallel(sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health):
     n_rows = action.shape[0]
     n_chunks = min(n_rows, N_CHUNKS)
     for c in prange(n_chunks):
         start, stop = chunk_bounds(n_rows, n_chunks, c)
-        _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health)
+        _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health)
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _step_checked_parallel(action_in, sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health):
+def _step_checked_parallel(action_in, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health):
     """:func:`_step_serial` with the rows on the thread pool."""
     bad = _clip_actions(action_in, action)
     if bad < 0:
-        _step_parallel(sim_rows, channels, track, dt, n_sub, action, task_rows, cfg, state_scales, health)
+        _step_parallel(sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health)
     return bad
 
 
@@ -527,10 +527,12 @@ class HuntingTask:
         semi = self.channels[:, CH_MODE] == MODE_SEMI
         max_damping = np.where(semi, self.channels[:, CH_C_MAX], 0.0)
         extra = damping_jacobian(self.model.input_matrix(), max_damping) if np.any(max_damping) else None
+        #: the integration method's stages per substep (METHOD_STAGES; 0: classic RK4)
+        self.stages = METHOD_STAGES[c["integration"]["method"]]
         self.step_choice = self._step_choice(lo, hi, extra)
         self.n_sub = self.step_choice.n_sub
         self.sim = BatchSimulator(self.model, n, c["dt"], (lo, hi), self.track_input, self.channels, n_sub=self.n_sub,
-                                  num_threads=c["num_threads"])  # fmt: skip
+                                  num_threads=c["num_threads"], stages=self.stages)  # fmt: skip
         self.loops = LoopChooser(n, self.sim.num_threads)
         # the task's per-row arrays
         self.episode = np.zeros((n, N_EPISODE))
@@ -584,14 +586,14 @@ class HuntingTask:
         if ig["n_sub"] is not None:
             return StepChoice(dt / ig["n_sub"], ig["n_sub"], float("nan"), float("nan"))
         if ig["step_criterion"] == "stability":
-            return stable_substep(self.model, lo, hi, dt, extra_jacobian=extra)
+            return stable_substep(self.model, lo, hi, dt, extra_jacobian=extra, stages=self.stages)
         ranges = {k: v for k, v in self.config["randomize"].items() if k in scenarios.RANGES and k != "actuator_gain"}
         models = [self.model]
         for end in (0, 1):
             models.append(scenarios.scenario_model(self.base_params, scenarios.Scenario(**{k: v[end] for k, v in ranges.items()}), self.model))
             for k, v in ranges.items():
                 models.append(scenarios.scenario_model(self.base_params, scenarios.Scenario(**{k: v[end]}), self.model))
-        choices = [accurate_substep(m, lo, hi, dt, ig["tolerance"], extra_jacobian=extra) for m in models]
+        choices = [accurate_substep(m, lo, hi, dt, ig["tolerance"], extra_jacobian=extra, stages=self.stages) for m in models]
         return max(choices, key=lambda choice: choice.n_sub)
 
     def _task_settings(self) -> np.ndarray:
@@ -861,7 +863,7 @@ class HuntingTask:
         """Advance every row by one env step (nothing is stepped if an action is bad)."""
         a = self._action_array(actions)
         sim = self.sim
-        args = (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, self.actions, self._task_rows, self.settings,
+        args = (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, sim.stages, self.actions, self._task_rows, self.settings,
                 self.state_scales, self.health)  # fmt: skip
         bad = self.loops.run(_step_serial, _step_checked_parallel, a, *args)
         if bad >= 0:
