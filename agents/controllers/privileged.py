@@ -57,6 +57,7 @@ class PrivilegedController(LQRController):
     observation_type = "state"
     #: the protocol tells a privileged controller the true scenario of its rows (``tell``)
     privileged = True
+    knows = "true scenario"  # what the results table says it is told
 
     def __init__(self, env_config: dict, r: float = DEFAULT_R, rate_weight: float = DEFAULT_RATE_WEIGHT,
                  step_kmh: float = 10.0, scenario: Scenario | None = None, loop_config: Mapping[str, Any] | None = None,

@@ -160,6 +160,30 @@ def _nominal_conicity(payload: dict) -> str | None:
     return next((lam for lam, e in (row.get("by_conicity") or {}).items() if e == row.get("nominal")), None)
 
 
+#: What a row is told when its result does not say (rows evaluated before ``knows`` was recorded).
+DEFAULT_TOLD = "conicity class"
+
+
+def _attribute(result: dict, name: str, default):
+    """A row's ``name`` (``knows``, ``privileged``): its own, else its classical controller's class
+    attribute, else ``default``."""
+    if name in result:
+        return result[name]
+    from ..controllers.classical import CLASSICAL
+
+    return getattr(CLASSICAL.get(result.get("policy")), name, default)
+
+
+def controller_label(result: dict) -> str:
+    """The row's name, with what it sees and is told where that is not the sensors and the
+    conicity class; a privileged reference is marked ‡ (not a baseline)."""
+    told = _attribute(result, "knows", DEFAULT_TOLD)
+    sees = "full state" if result.get("observation_type") == "state" else "sensors"
+    extra = [x for x in (told if told != DEFAULT_TOLD else None, sees if sees != "sensors" else None) if x]
+    mark = " ‡" if _attribute(result, "privileged", False) else ""
+    return f"{result['policy']}{mark}" + (f" ({', '.join(extra)})" if extra else "")
+
+
 def headline_table(payload: dict) -> str:
     """At most 8 columns, the score first: controller, score, nominal, λ 0.1, λ 0.3, worst fault,
     margins (gain / delay), curving; notes below."""
@@ -171,11 +195,15 @@ def headline_table(payload: dict) -> str:
     for r in rows:
         fault = worst_fault(r)
         by = r.get("by_conicity") or {}
-        cells = [r["policy"], score_text(table[r["policy"]]), _speed(r.get("nominal")), _speed(by.get("0.1")),
+        cells = [controller_label(r), score_text(table[r["policy"]]), _speed(r.get("nominal")), _speed(by.get("0.1")),
                  _speed(by.get("0.3")), f"{_speed(fault[1])} ({fault[0]})" if fault else "-", _margins(r), curving_verdict(r)]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     search = next((r["search"] for r in rows if "search" in r), None)
     notes = ["", f"Score: {SCORE_DEFINITION}."]
+    if any(_attribute(r, "privileged", False) for r in rows):
+        notes.append("‡ The privileged reference: told each run's true scenario and sees the full state; it measures the "
+                     "headroom and is not a baseline to beat. Every other row sees the sensors and is told the conicity "
+                     "class unless its name says otherwise.")  # fmt: skip
     if search:
         notes.append(f"Speeds: closed-loop critical speed in km/h, the highest speed all {search['seeds']} seeds pass "
                      f"(search {search['floor_kmh']:g}-{search['ceiling_kmh']:g} km/h, bisection to {search['tol_kmh']:g} km/h); "

@@ -803,7 +803,10 @@ def evaluate_policy_v2(source: Any, env_config: Mapping[str, Any] | None = None,
     name = label or (source if isinstance(source, str) else getattr(probe, "name", type(probe).__name__))
     ctx = PartContext(factory, env_config, settings, observation_type, Progress(str(name), settings.progress),
                       privileged=bool(getattr(probe, "privileged", False)))
-    out: dict[str, Any] = {"policy": name, "observation_type": observation_type, "protocol_version": settings.version}
+    out: dict[str, Any] = {"policy": name, "observation_type": observation_type, "protocol_version": settings.version,
+                           "knows": getattr(probe, "knows", "conicity class")}
+    if ctx.privileged:
+        out["privileged"] = True
     if settings.screening:
         out["screening"] = (f"screening, not the protocol: {settings.seeds} seeds, {settings.worst_case_draws} worst-case "
                             f"draws, bisection to {settings.tol_kmh:g} km/h")  # fmt: skip
