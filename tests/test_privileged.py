@@ -12,6 +12,7 @@ from bogie_agents.controllers.privileged import PrivilegedController
 from bogie_env.actuators import CHANNEL_NAMES
 from bogie_env.envs.config import make_config
 from bogie_env.envs.scenario import Scenario
+from bogie_env.envs import task as T
 from bogie_env.envs.task import HuntingTask
 
 
@@ -113,3 +114,16 @@ def test_rate_aware_lqg_reduces_to_lqg(v1):
         RateAwareLQGController(v1, rate_weight=-1.0)
     with pytest.raises(ValueError, match="rate_weight"):
         PrivilegedController(v1, rate_weight=float("nan"))
+
+
+def test_margins_model_matches_act(v1, reference):
+    """The margins' linear controller model reproduces act() step by step (unclipped)."""
+    from bogie_agents.design.margins import check_controller_model, controller_model
+
+    told = reference.tell(Scenario(), v1)
+    n_obs = 25
+    y0 = np.zeros(n_obs)
+    y0[T.speed_index("state")] = (350.0 - T.SPEED_CENTRE_KMH) / T.SPEED_SCALE_KMH
+    ctrl = controller_model(told, n_obs, 350.0, y0)
+    ctrl.check_shapes(n_obs, told.n_act)
+    assert check_controller_model(told, ctrl, y0, np.zeros(told.n_act)) < 1e-3  # float32 rounding of act()

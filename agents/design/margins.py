@@ -241,6 +241,39 @@ def lqr_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
     return ControllerModel(a, b, c, d, "LQR gains (interpolated at the speed)")
 
 
+def privileged_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
+    """The privileged reference (:class:`bogie_agents.controllers.privileged.PrivilegedController`): states ``[F_hat, registers]`` (the replicated lag and command registers),
+    ``u = -K [x_lat(y), F_hat, registers]`` at the speed; exactly what its ``act`` does without clipping."""
+    from bogie_env.dynamics import LATERAL_STATES
+
+    gain = policy.gain_at(np.array([speed_kmh]))[0]
+    lat = list(LATERAL_STATES)
+    n_lat, m = len(lat), policy.n_act
+    select = np.zeros((n_lat, n_obs))
+    for i, state in enumerate(lat):
+        select[i, state] = STATE_SCALES[state]
+    n_c = gain.shape[1] - n_lat
+    c = -gain[:, n_lat:]
+    d = -gain[:, :n_lat] @ select
+    a, b = np.zeros((n_c, n_c)), np.zeros((n_c, n_obs))
+    w = np.exp(-policy.bandwidth * policy.dt)
+    pos = m
+    for j, delay in enumerate(policy.delays):
+        g = (1 - w[j]) * policy.max_force[j] * policy.channel_gain[j]
+        a[j, j] = w[j]
+        if delay == 0:
+            a[j] += g * c[j]
+            b[j] += g * d[j]
+        else:
+            a[j, pos + delay - 1] += g
+            a[pos] = c[j]
+            b[pos] = d[j]
+            for i in range(1, delay):
+                a[pos + i, pos + i - 1] = 1.0
+            pos += delay
+    return ControllerModel(a, b, c, d, "privileged LQR gains with the replicated lag and registers (at the speed)")
+
+
 def lqg_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
     """LQG: the Kalman filter's estimate and the last command are the states."""
     v = np.array([speed_kmh])
@@ -274,6 +307,7 @@ def controller_model(policy, n_obs: int, speed_kmh: float, y0: np.ndarray) -> Co
     autograd, anything else by finite differences of ``act`` (assumed stateless).
     """
     from ..controllers.lqr import LQGController, LQRController, PassiveController, SkyhookController
+    from ..controllers.privileged import PrivilegedController
 
     hook = getattr(policy, "controller_model", None)
     if callable(hook):
@@ -289,6 +323,8 @@ def controller_model(policy, n_obs: int, speed_kmh: float, y0: np.ndarray) -> Co
         return skyhook_model(policy, n_obs)
     if isinstance(policy, LQGController):
         return lqg_model(policy, n_obs, speed_kmh)
+    if isinstance(policy, PrivilegedController):
+        return privileged_model(policy, n_obs, speed_kmh)
     if isinstance(policy, LQRController):
         return lqr_model(policy, n_obs, speed_kmh)
     if _is_sb3(policy):
