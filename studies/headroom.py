@@ -4,7 +4,7 @@ conicity in the v1 loop, and with one limit of the loop relaxed at a time (docs/
     python studies/headroom.py                          # screening (3 seeds), the five worlds, conicity 0.05-0.3
     python studies/headroom.py --full --world v1        # the protocol's 10 seeds, the v1 loop only
     python studies/headroom.py --policy robust_steering # any controller in the same worlds
-    python studies/headroom.py --weights 0.3,1,3 --rate-weights 10,100   # the reference's weights
+    python studies/headroom.py --full --world v1 --weights 1,3,10 --rate-weights 10,30   # the reference's weights
 
 Worlds (each relaxes one thing of the v1 loop; the protocol is unchanged):
 
@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from bogie_agents.evaluation import stability_protocol as sp
-from bogie_agents.controllers.privileged import DEFAULT_R, DEFAULT_RATE_WEIGHT, PrivilegedController
+from bogie_agents.controllers.privileged import PrivilegedController
 from bogie_env.actuators import CHANNEL_NAMES
 from bogie_env.envs.config import make_config
 from bogie_env.envs.scenario import Scenario
@@ -61,7 +61,7 @@ def linear_limit_kmh(controller: PrivilegedController, conicity: float, speeds_k
     return None
 
 
-def run(policy: str, world: dict, conicities: list[float], full: bool, r: float, rate_weight: float) -> dict[str, float]:
+def run(policy: str, world: dict, conicities: list[float], full: bool, r: float | None, rate_weight: float | None) -> dict[str, float]:
     env = make_config(copy.deepcopy(world), variant="v1")
     cols = tuple("nominal" if np.isclose(c, 0.025) else f"conicity:{c:g}" for c in conicities)
     settings = sp.Settings(columns=cols, progress=False) if full else sp.screening_settings(columns=cols, progress=False)
@@ -72,14 +72,20 @@ def run(policy: str, world: dict, conicities: list[float], full: bool, r: float,
     return {k: v["kmh"] for k, v in res["by_conicity"].items()}
 
 
+def _weights(text: str) -> list[float | None]:
+    """A comma-separated list of weights; ``scheduled``: [None] (the reference's own schedule)."""
+    return [None] if text == "scheduled" else [float(x) for x in text.split(",")]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy", default="privileged")
     parser.add_argument("--world", action="append", help="world names (default: all)")
     parser.add_argument("--conicity", default="0.05,0.1,0.2,0.3")
     parser.add_argument("--full", action="store_true", help="the protocol's 10 seeds (default: screening, 3 seeds)")
-    parser.add_argument("--weights", default=str(DEFAULT_R), help="the reference's command weights r, comma-separated")
-    parser.add_argument("--rate-weights", default=str(DEFAULT_RATE_WEIGHT), help="its force-rate weights, comma-separated")
+    parser.add_argument("--weights", default="scheduled", help="the reference's command weights r, comma-separated "
+                        "(default: scheduled on the true conicity, privileged.WEIGHTS_BY_CONICITY)")
+    parser.add_argument("--rate-weights", default="scheduled", help="its force-rate weights, comma-separated (default: scheduled)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     conicities = [float(c) for c in args.conicity.split(",")]
@@ -89,8 +95,8 @@ def main() -> None:
     if unknown:
         raise SystemExit(f"--world {unknown}: unknown; allowed: {', '.join(all_worlds)}")
     rows = []
-    for r in (float(x) for x in args.weights.split(",")):
-        for q in (float(x) for x in args.rate_weights.split(",")):
+    for r in _weights(args.weights):
+        for q in _weights(args.rate_weights):
             for name in names:
                 start = time.monotonic()
                 values = run(args.policy, all_worlds[name], conicities, args.full, r, q)
@@ -99,10 +105,11 @@ def main() -> None:
                 rows.append(row)
                 if not args.json:
                     cells = " ".join(f"{k}:{v:.1f}" for k, v in values.items())
-                    print(f"{args.policy} r={r:g} rate_weight={q:g} {name:16s} {cells} ({row['seconds']} s)", flush=True)
+                    weights = f" r={r} rate_weight={q}" if args.policy == "privileged" else ""
+                    print(f"{args.policy}{weights} {name:16s} {cells} ({row['seconds']} s)", flush=True)
     if args.policy == "privileged":
-        reference = PrivilegedController(make_config(variant="v1"), r=float(args.weights.split(",")[0]),
-                                         rate_weight=float(args.rate_weights.split(",")[0]))  # fmt: skip
+        reference = PrivilegedController(make_config(variant="v1"), r=_weights(args.weights)[0],
+                                         rate_weight=_weights(args.rate_weights)[0])  # fmt: skip
         speeds = np.arange(100.0, 700.0 + 1e-9, 10.0)
         linear = {f"{c:g}": linear_limit_kmh(reference, c, speeds) for c in conicities}
         rows.append({"linear_unstable_from_kmh": linear})

@@ -24,6 +24,8 @@ delay. The actuators' limits enter the cost as soft constraints, each relative t
   ``rate_limit``, weight ``rate_weight``;
 - the state weights of :class:`bogie_agents.controllers.lqr.LQRController`.
 
+``r`` and ``rate_weight`` are scheduled on the true conicity (:data:`WEIGHTS_BY_CONICITY`) unless given.
+
 The commands, their registers and the lag are replicated inside the controller from the
 commands it gave (it knows them exactly; the env's rate limit may make the true force lag
 further behind). Gains are designed every ``step_kmh`` and interpolated in speed.
@@ -43,10 +45,16 @@ from bogie_env.sampled_plant import sampled_loop_plant
 
 from .lqr import DesignPoint, LQRController, add_rate_cost, lateral_model, lqr_gain_cross
 
-#: Default weights (chosen on the protocol's screening at conicity 0.1-0.3, see
-#: docs/studies/headroom.md); the reference may be tuned: it is not a baseline.
-DEFAULT_R = 1.0
-DEFAULT_RATE_WEIGHT = 10.0
+#: The weights ``(r, rate_weight)`` by true conicity: ``(upper conicity, weights)``, the first
+#: row whose bound exceeds the conicity. Chosen per conicity class on the protocol's seeds over
+#: r in {1, 3, 10} x rate_weight in {10, 30} (docs/studies/headroom.md): the reference may be
+#: tuned where it is judged, since it is a bound, not a baseline.
+WEIGHTS_BY_CONICITY: tuple[tuple[float, tuple[float, float]], ...] = ((0.15, (1.0, 30.0)), (math.inf, (10.0, 10.0)))
+
+
+def scheduled_weights(conicity: float) -> tuple[float, float]:
+    """``(r, rate_weight)`` for the true ``conicity`` (:data:`WEIGHTS_BY_CONICITY`)."""
+    return next(w for bound, w in WEIGHTS_BY_CONICITY if conicity < bound)
 
 
 class PrivilegedController(LQRController):
@@ -59,14 +67,19 @@ class PrivilegedController(LQRController):
     privileged = True
     knows = "true scenario"  # what the results table says it is told
 
-    def __init__(self, env_config: dict, r: float = DEFAULT_R, rate_weight: float = DEFAULT_RATE_WEIGHT,
+    def __init__(self, env_config: dict, r: float | None = None, rate_weight: float | None = None,
                  step_kmh: float = 10.0, scenario: Scenario | None = None, loop_config: Mapping[str, Any] | None = None,
                  v_range_kmh: tuple[float, float] | None = None) -> None:  # fmt: skip
+        self.scenario = scenario if scenario is not None else Scenario()
+        self.weights_given = (r, rate_weight)  # None: scheduled on the true conicity
+        lam = self.scenario.conicity if self.scenario.conicity is not None else bogie_params(env_config).lam
+        scheduled = scheduled_weights(lam)
+        r = scheduled[0] if r is None else r
+        rate_weight = scheduled[1] if rate_weight is None else rate_weight
         for field, value in (("r", r), ("rate_weight", rate_weight)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0 and (field != "r" or value > 0)):
                 raise ValueError(f"PrivilegedController: {field} = {value!r}; allowed: a finite number "
                                  f"{'> 0' if field == 'r' else '>= 0'}")  # fmt: skip
-        self.scenario = scenario if scenario is not None else Scenario()
         self.rate_weight = float(rate_weight)
         loop = loop_config if loop_config is not None else env_config
         base = bogie_params(env_config)
@@ -82,8 +95,8 @@ class PrivilegedController(LQRController):
     # ---- what it is told -----------------------------------------------------------------------
     def tell(self, scenario: Scenario, loop_config: Mapping[str, Any]) -> "PrivilegedController":
         """A controller designed for ``scenario`` in the loop of ``loop_config`` (the task's config:
-        its command delays), with this one's weights."""
-        return PrivilegedController(self.config, self.r, self.rate_weight, float(self.speeds_kmh[1] - self.speeds_kmh[0])
+        its command delays), with this one's given weights (or those scheduled on the scenario's conicity)."""
+        return PrivilegedController(self.config, *self.weights_given, float(self.speeds_kmh[1] - self.speeds_kmh[0])
                                     if len(self.speeds_kmh) > 1 else 10.0, scenario, loop_config, self._v_range)  # fmt: skip
 
     @property
