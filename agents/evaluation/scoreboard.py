@@ -260,7 +260,10 @@ def conicity_figure(payload: dict, path: Path) -> Path:
             ax.fill_between(lams, 0, kmh, color="0.85", label="passive", zorder=0)
             ax.plot(lams, kmh, color="0.4", lw=1.2, zorder=1)
             continue
-        (line,) = ax.plot(lams, kmh, marker="o", ms=4, lw=1.4, ls=next(styles), label=r["policy"])
+        if _attribute(r, "privileged", False):  # the headroom, not a baseline
+            (line,) = ax.plot(lams, kmh, marker="s", ms=4, lw=1.6, ls=":", color="k", label=f"{r['policy']} ‡ (reference)")
+        else:
+            (line,) = ax.plot(lams, kmh, marker="o", ms=4, lw=1.4, ls=next(styles), label=r["policy"])
         top = [(lam, by[lam]["kmh"]) for lam in lams if _at_ceiling(by[lam])]
         if top:
             ax.plot(*zip(*top), ls="none", marker="o", ms=8, mfc="none", color=line.get_color())
