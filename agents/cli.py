@@ -39,7 +39,7 @@ AGENTS_EXTRA = ("stable_baselines3", "torch", "tensorboard", "tqdm", "rich")
 @argument("--timesteps", type=int, default=None, help="override the config's total_timesteps")
 @argument("--out", required=True, help="run folder, e.g. runs/ppo")
 @argument("--config", default=None, help="agent config YAML (default: configs/agents/ALGO.yaml)")
-@argument("--algo", choices=("ppo", "sac", "td3"), default=None)
+@argument("--algo", choices=("ppo", "sac", "td3", "recurrent_ppo"), default=None)
 def cmd_train(args: argparse.Namespace) -> int:
     from .train import train_from_cli
 

@@ -31,12 +31,15 @@ from bogie_env.envs.config import make_config
 from bogie_env.fileio import load_yaml, write_text_atomic
 from bogie_env.params import CONFIG_DIR, ConfigError
 
+from .memory import RECURRENT_POLICY_KWARGS, check_memory_config, stack_env, unstack_env
 from .policies import NORMALISATION_FILE, save_normalisation
 
-ALGOS = ("ppo", "sac", "td3")
+ALGOS = ("ppo", "sac", "td3", "recurrent_ppo")
+#: The on-policy algorithms (rollouts of n_envs x n_steps, no replay buffer).
+ON_POLICY = ("ppo", "recurrent_ppo")
 RUN_KEYS = {"algo", "seed", "total_timesteps", "n_envs", "env_id", "env", "eval_env", "vecnormalize", "policy",
             "policy_kwargs", "hyperparams", "eval", "checkpoint", "torch_threads", "max_wall_time_s", "residual",
-            "extra_envs"}  # fmt: skip
+            "extra_envs", "frame_stack"}  # fmt: skip
 EXTRA_ENV_KEYS = {"env_id", "n_envs", "env"}
 #: The env id a config without ``env_id`` trains on (the configs written before v1 existed).
 DEFAULT_ENV_ID = "Bogie/Hunting-v0"
@@ -50,7 +53,7 @@ def load_run_config(path: str | Path | None, algo: str | None) -> dict:
     """Read ``configs/agents/<algo>.yaml`` (or a given file) and validate its keys."""
     if path is None:
         if algo is None:
-            raise ConfigError("give --config FILE or --algo (ppo, sac, td3)")
+            raise ConfigError(f"give --config FILE or --algo ({', '.join(ALGOS)})")
         path = CONFIG_DIR / "agents" / f"{algo}.yaml"
     path = Path(path)
     if not path.is_file():
@@ -72,7 +75,7 @@ def load_run_config(path: str | Path | None, algo: str | None) -> dict:
 
 
 MAX_N_ENVS = 4096  # the vector env's cap (bogie_env.envs.config.MAX_NUM_ENVS would say the same)
-POLICY_KWARGS = {"net_arch", "activation_fn", "log_std_init", "ortho_init"}
+POLICY_KWARGS = {"net_arch", "activation_fn", "log_std_init", "ortho_init", *RECURRENT_POLICY_KWARGS}
 VECNORMALIZE_KEYS = {"norm_obs": bool, "norm_reward": bool, "clip_obs": float, "clip_reward": float, "gamma": float,
                      "epsilon": float}  # fmt: skip
 # hyperparameter -> (kind, low, high); kinds: "int", "float", "float|auto" (SAC's ent_coef)
@@ -96,6 +99,7 @@ HYPERPARAMS_OF = {
     "td3": {"learning_rate", "gamma", "batch_size", "buffer_size", "learning_starts", "tau", "train_freq",
             "gradient_steps", "policy_delay", "target_policy_noise", "target_noise_clip", "action_noise_sigma"},
 }  # fmt: skip
+HYPERPARAMS_OF["recurrent_ppo"] = HYPERPARAMS_OF["ppo"]
 SECTION_KEYS = {"eval": {"freq_steps", "n_envs", "episodes"}, "checkpoint": {"freq_steps"}}
 
 
@@ -168,10 +172,9 @@ def validate_run_config(config: dict, where: str = "") -> None:
             raise _bad(where, "vecnormalize.norm_obs", (config.get("vecnormalize") or {}).get("norm_obs", True),
                        "false with residual.features 'washed_out' (its features are scaled already, and a "
                        "mean subtracted from them would make the residual nonzero at rest)")  # fmt: skip
-        if residual["features"] == "washed_out" and algo != "ppo":
-            raise _bad(where, "algo", algo, "ppo with residual.features 'washed_out' (its odd actor)")
-    if config.get("policy", "MlpPolicy") != "MlpPolicy":
-        raise _bad(where, "policy", config.get("policy"), "MlpPolicy (the observations are flat vectors)")
+        if residual["features"] == "washed_out" and algo not in ON_POLICY:
+            raise _bad(where, "algo", algo, f"{' or '.join(ON_POLICY)} with residual.features 'washed_out' (its odd actor)")
+    check_memory_config(config, where)
     pk = _mapping(where, "policy_kwargs", config.get("policy_kwargs"), POLICY_KWARGS)
     if "net_arch" in pk:
         arch = pk["net_arch"]
@@ -207,7 +210,7 @@ def validate_run_config(config: dict, where: str = "") -> None:
                 raise _bad(where, name, value, f"'auto', 'auto_<initial value>' or a number in ({low:g}, {high:g}]")
         else:
             _float(where, name, value, low, high, low_open=key not in ("ent_coef", "learning_starts", "target_entropy"))
-    if algo == "ppo" and "batch_size" in hyper:
+    if algo in ON_POLICY and "batch_size" in hyper:
         rollout = hyper.get("n_steps", 2048) * total_envs(config)
         if hyper["batch_size"] > rollout:
             raise _bad(where, "hyperparams.batch_size", hyper["batch_size"],
@@ -308,7 +311,7 @@ def make_vec_envs(config: dict, seed: int):
     eval_env = VecMonitor(_residual(BogieHuntingSB3VecEnv(int(eval_cfg.get("n_envs", 4)), eval_config, seed=seed + 10_000),
                                     config, eval_config))  # fmt: skip
     eval_env = VecNormalize(eval_env, training=False, norm_obs=vn["norm_obs"], norm_reward=False, clip_obs=vn["clip_obs"])
-    return env, eval_env
+    return stack_env(env, config), stack_env(eval_env, config)  # frame_stack: the history on top of the normalisation
 
 
 class RunFolderLock:
@@ -367,7 +370,7 @@ def steps_learned(config: dict, total: int) -> int:
     (PPO) or ``n_envs x train_freq`` (SAC, TD3), so a budget is rounded up to a whole number of
     them. Training to this total keeps the progress bar's count and total consistent."""
     hyper = config.get("hyperparams") or {}
-    unit = total_envs(config) * int(hyper.get("n_steps", 2048) if config["algo"] == "ppo" else hyper.get("train_freq", 1))
+    unit = total_envs(config) * int(hyper.get("n_steps", 2048) if config["algo"] in ON_POLICY else hyper.get("train_freq", 1))
     return -(-total // unit) * unit
 
 
@@ -424,7 +427,10 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
     write_json_atomic(out / "config.json", run_config)
 
     env, eval_env = make_vec_envs(config, seed)
-    cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[algo]
+    if algo == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO as cls
+    else:
+        cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[algo]
     hyper = copy.deepcopy(config.get("hyperparams") or {})
     if algo == "td3" and "action_noise_sigma" in hyper:
         from stable_baselines3.common.noise import NormalActionNoise
@@ -442,7 +448,8 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
         try:
             norm_path = zip_path.with_name(f"rl_model_vecnormalize_{steps}_steps.pkl")
             if norm_path.is_file():
-                env = VecNormalize.load(str(norm_path), env.venv)
+                normalised, restack = unstack_env(env)
+                env = restack(VecNormalize.load(str(norm_path), normalised.venv))
             model = cls.load(str(zip_path), env=env, device="cpu", tensorboard_log=str(out / "tb"))
             buffer = zip_path.with_name(f"rl_model_replay_buffer_{steps}_steps.pkl")
             if buffer.is_file() and hasattr(model, "load_replay_buffer"):
@@ -453,13 +460,16 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
             print(f"could not resume from {zip_path.name} ({error}); trying an older checkpoint")
             model = None
     if model is None:
-        model = cls(config.get("policy", "MlpPolicy"), env, seed=seed, verbose=verbose, device="cpu",
+        model = cls(config.get("policy", "MlpLstmPolicy" if algo == "recurrent_ppo" else "MlpPolicy"), env, seed=seed, verbose=verbose, device="cpu",
                     tensorboard_log=str(out / "tb"), policy_kwargs=_policy_kwargs(config), **hyper)  # fmt: skip
 
     if (config.get("residual") or {}).get("features") == "washed_out":
         from .residual import odd_actor
 
+        from .memory import zero_lstm_biases
+
         odd_actor(model)  # after a resume too: requires_grad is not saved
+        zero_lstm_biases(model)
     started = time.time()
     done_before = int(model.num_timesteps)
     eval_cfg = config.get("eval") or {}
@@ -492,7 +502,7 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
     callbacks = CallbackList([
         CheckpointCallback(save_freq=max(1, int(ckpt_cfg.get("freq_steps", 500_000)) // n_envs),
                            save_path=str(out / "checkpoints"), save_vecnormalize=True,
-                           save_replay_buffer=algo != "ppo"),
+                           save_replay_buffer=algo not in ON_POLICY),
         evaluation,
         WallClock(config.get("max_wall_time_s")),
     ])  # fmt: skip
