@@ -346,12 +346,22 @@ def cmd_margins(args: argparse.Namespace) -> int:
 @argument("--render-only", action="store_true",
           help="run nothing: rewrite OUT/results.json's scores, table.md, table_full.md, the figure and the --docs "
                "blocks from the existing OUT/results.json (v1 env)")
+@argument("--curves", action="append", default=[], metavar="NAME=GLOB",
+          help="also draw OUT/learning_curves.png (and .json) from training runs' eval/evaluations.npz: per NAME the "
+               "mean and min-max over its run folders (one per training seed), e.g. "
+               "ppo_scratch_v1='runs/ppo_scratch_v1/seed_*'; repeatable; without --policy nothing else is run")
 @(lambda func: policy_options(func, required=False))
 @backend_options
 @bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
     from .results import run, run_v2
 
+    if args.curves:
+        from .learning_curves import write_curves
+
+        print_json(write_curves(args.curves, Path(args.out)))
+        if not args.policy and not args.render_only:
+            return 0
     if args.render_only:
         from .scoreboard import render
 

@@ -100,7 +100,7 @@ HYPERPARAMS_OF = {
             "gradient_steps", "policy_delay", "target_policy_noise", "target_noise_clip", "action_noise_sigma"},
 }  # fmt: skip
 HYPERPARAMS_OF["recurrent_ppo"] = HYPERPARAMS_OF["ppo"]
-SECTION_KEYS = {"eval": {"freq_steps", "n_envs", "episodes"}, "checkpoint": {"freq_steps"}}
+SECTION_KEYS = {"eval": {"freq_steps", "n_envs", "episodes", "seed"}, "checkpoint": {"freq_steps"}}
 
 
 def _bad(where: str, key: str, value, allowed: str) -> ConfigError:
@@ -218,6 +218,9 @@ def validate_run_config(config: dict, where: str = "") -> None:
     for section, known in SECTION_KEYS.items():
         values = _mapping(where, section, config.get(section), known)
         for key, value in values.items():
+            if key == "seed":  # eval.seed: every evaluation runs the episodes of this seed (agents/learning_curves.py)
+                _int(where, f"{section}.{key}", value, 0, 2**32 - 1)
+                continue
             _int(where, f"{section}.{key}", value, 1, 10**10 if key == "freq_steps" else MAX_N_ENVS)
 
 
@@ -410,9 +413,11 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
                   verbose: int) -> dict:  # fmt: skip
     import torch
     from stable_baselines3 import PPO, SAC, TD3
-    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
     from stable_baselines3.common.utils import set_random_seed
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from .learning_curves import eval_callback
 
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     algo = config["algo"]
@@ -493,7 +498,7 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
         def _on_step(self) -> bool:
             return self.budget_s is None or time.time() - started < self.budget_s
 
-    evaluation = EvalCallback(eval_env, n_eval_episodes=int(eval_cfg.get("episodes", 4)),
+    evaluation = eval_callback(eval_env, seed=eval_cfg.get("seed"), n_eval_episodes=int(eval_cfg.get("episodes", 4)),
                               eval_freq=max(1, int(eval_cfg.get("freq_steps", 200_000)) // n_envs),
                               best_model_save_path=str(out), log_path=str(out / "eval"), deterministic=True,
                               callback_on_new_best=SaveNormalisation(), verbose=verbose)  # fmt: skip
