@@ -289,8 +289,9 @@ def load_sb3_policy(path: str | Path, trusted: bool = False, env_config: dict | 
         except Exception as error:  # noqa: BLE001 - try the next algorithm class
             errors.append(f"{cls.__name__}: {type(error).__name__}: {str(error)[:200]}")
     if model is None:
-        raise ConfigError(f"could not load {str(zip_path)!r} as a {', '.join(c.__name__ for c in order)} model "
-                          f"({'; '.join(errors)})")  # fmt: skip
+        names = [c.__name__ for c in order]
+        names = " or ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else names)
+        raise ConfigError(f"could not load {str(zip_path)!r} as a {names} model ({'; '.join(errors)})")
     from .memory import check_frame_stack
 
     frame_stack = check_frame_stack(run_config.get("frame_stack") or 1, f"{str(config_path)!r}")
