@@ -97,7 +97,8 @@ def curves(rows: list[tuple[str, list[Path]]]) -> list[dict]:
                     "config": runs[0]["source"], "eval_seed": runs[0]["eval_seed"], "episodes": runs[0]["episodes"],
                     "timesteps": steps.tolist(), "mean": returns.mean(axis=0).tolist(),
                     "min": returns.min(axis=0).tolist(), "max": returns.max(axis=0).tolist(),
-                    "per_seed": returns.tolist()})  # fmt: skip
+                    "per_seed": returns.tolist(),
+                    "train_commands": [f"bogie train --config {r['source']} --seed {r['seed']} --out {r['run']}" for r in runs]})  # fmt: skip
     return out
 
 
@@ -129,5 +130,8 @@ def write_curves(specs: list[str], out: Path) -> dict:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     figure = curves_figure(data, out / FIGURE)
-    write_text_atomic(out / DATA, json.dumps({"rows": data}, indent=1))
-    return {"figure": str(figure), "data": str(out / DATA), "rows": [row["row"] for row in data]}
+    import shlex
+
+    command = " ".join(["bogie results --out", shlex.quote(str(out))] + [f"--curves {shlex.quote(s)}" for s in specs])
+    write_text_atomic(out / DATA, json.dumps({"command": command, "rows": data}, indent=1))
+    return {"figure": str(figure), "data": str(out / DATA), "command": command, "rows": [row["row"] for row in data]}

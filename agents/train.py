@@ -12,7 +12,9 @@ checkpoint interval; the evaluation history (``eval/evaluations.npz``) is restor
 ``best_model.zip`` is only replaced by a better evaluation. ``--no-resume`` moves an earlier run to
 ``OUT/previous/<UTC time>/``. The folder is locked (``OUT/.train.lock``) while a training runs.
 Every key of the agent config is validated (:func:`validate_run_config`). Files the run writes
-itself are written atomically.
+itself are written atomically. Memory: ``algo: recurrent_ppo`` (sb3-contrib's RecurrentPPO) or
+``frame_stack: K`` (:mod:`bogie_agents.memory`); ``eval.seed``: every evaluation runs the same
+episodes, for learning curves across training seeds (:mod:`bogie_agents.learning_curves`).
 """
 
 from __future__ import annotations
