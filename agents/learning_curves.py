@@ -103,22 +103,29 @@ def curves(rows: list[tuple[str, list[Path]]]) -> list[dict]:
 
 
 def curves_figure(data: list[dict], path: Path) -> Path:
-    """Mean evaluation return against env steps per row, with the min-max band over its seeds."""
+    """One panel per row (its own return axis; the rows' returns differ by far more than their
+    spreads): mean evaluation return against env steps, the min-max band over its seeds, and
+    each seed as a thin line."""
     from bogie_env.analysis.plots import plt, save
 
-    fig, ax = plt.subplots(figsize=(8, 4.6))
-    for row in data:
+    fig, axes = plt.subplots(len(data), 1, figsize=(8, 1.2 + 2.2 * len(data)), sharex=True, squeeze=False)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, (row, ax) in enumerate(zip(data, axes[:, 0])):
         steps = np.asarray(row["timesteps"], dtype=float) / 1e6
-        (line,) = ax.plot(steps, row["mean"], marker="o", ms=3, lw=1.5, label=f"{row['row']} ({len(row['runs'])} seeds)")
-        ax.fill_between(steps, row["min"], row["max"], color=line.get_color(), alpha=0.2, lw=0)
-    ax.set_xlabel("env steps (millions)")
-    ax.set_ylabel("evaluation return (mean over episodes)")
-    episodes = sorted({row["episodes"] for row in data})
+        colour = colours[k % len(colours)]
+        ax.fill_between(steps, row["min"], row["max"], color=colour, alpha=0.25, lw=0, label="min-max over seeds")
+        for returns in row["per_seed"]:
+            ax.plot(steps, returns, color=colour, lw=0.6, alpha=0.6)
+        ax.plot(steps, row["mean"], color=colour, marker="o", ms=3, lw=1.8, label="mean over seeds")
+        ax.set_title(f"{row['row']}: {len(row['runs'])} seeds ({', '.join(map(str, row['seeds']))}), "
+                     f"{row['episodes']} episodes per evaluation", fontsize=9)  # fmt: skip
+        ax.set_ylabel("evaluation return")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8, loc="lower right")
+    axes[-1, 0].set_xlabel("env steps (millions)")
     same = all(row["eval_seed"] is not None for row in data)
-    ax.set_title(f"Learning curves: mean and min-max over training seeds; {'/'.join(map(str, episodes))} episodes per "
-                 f"evaluation{', the same for every evaluation' if same else ''}", fontsize=9)  # fmt: skip
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    fig.suptitle("Learning curves: evaluation return (mean over episodes)"
+                 + (", the same episodes at every evaluation and seed" if same else ""), fontsize=10)  # fmt: skip
     return save(fig, path)
 
 
