@@ -29,6 +29,7 @@ def _config(**changes):
 
 
 def _train(tmp_path, config):
+    tmp_path.mkdir(parents=True, exist_ok=True)
     path = tmp_path / "run.yaml"
     path.write_text(yaml.safe_dump(config))
     out = tmp_path / "run"
@@ -138,3 +139,16 @@ def test_frame_stack_residual_trains(tmp_path):
 def test_memory_config_errors_name_field_value_and_allowed(changes, message):
     with pytest.raises(ConfigError, match=message):
         validate_run_config(_config(**changes), "test.yaml")
+
+
+@pytest.mark.parametrize("memory", [{"algo": "recurrent_ppo", "policy_kwargs": {"net_arch": [8], "lstm_hidden_size": 4}},
+                                    {"frame_stack": 2}])  # fmt: skip
+def test_memory_training_is_reproducible_for_a_seed(tmp_path, memory):
+    import torch
+
+    params = []
+    for k in range(2):
+        out = _train(tmp_path / str(k), _config(**memory))
+        model = load_policy(str(out / "final_model.zip"), make_config(SHORT, variant="v1"), trusted=True).model
+        params.append(torch.nn.utils.parameters_to_vector(model.policy.parameters()).detach().numpy())
+    assert np.array_equal(params[0], params[1])
