@@ -152,3 +152,15 @@ def test_memory_training_is_reproducible_for_a_seed(tmp_path, memory):
         model = load_policy(str(out / "final_model.zip"), make_config(SHORT, variant="v1"), trusted=True).model
         params.append(torch.nn.utils.parameters_to_vector(model.policy.parameters()).detach().numpy())
     assert np.array_equal(params[0], params[1])
+
+
+@pytest.mark.parametrize("memory", [{"algo": "recurrent_ppo", "policy_kwargs": {"net_arch": [8], "lstm_hidden_size": 4}},
+                                    {"frame_stack": 2}])  # fmt: skip
+def test_memory_training_resumes_from_its_checkpoint(tmp_path, memory):
+    config = _config(**memory, checkpoint={"freq_steps": 128})
+    out = _train(tmp_path, config)
+    summary = train(load_run_config(tmp_path / "run.yaml", None), out, total_timesteps=512, progress_bar=False)
+    assert summary["resumed_from"] and summary["timesteps"] >= 512
+    policy = load_policy(str(out), make_config(SHORT, variant="v1"), trusted=True)
+    policy.reset(2)
+    assert policy.act(np.zeros((2, policy.frame_shape[0]), np.float32)).shape == (2, policy.model.action_space.shape[0])
