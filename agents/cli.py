@@ -39,7 +39,7 @@ AGENTS_EXTRA = ("stable_baselines3", "torch", "tensorboard", "tqdm", "rich")
 @argument("--timesteps", type=int, default=None, help="override the config's total_timesteps")
 @argument("--out", required=True, help="run folder, e.g. runs/ppo")
 @argument("--config", default=None, help="agent config YAML (default: configs/agents/ALGO.yaml)")
-@argument("--algo", choices=("ppo", "sac", "td3"), default=None)
+@argument("--algo", choices=("ppo", "sac", "td3", "recurrent_ppo"), default=None)
 def cmd_train(args: argparse.Namespace) -> int:
     from .training.train import train_from_cli
 
@@ -307,12 +307,22 @@ def cmd_margins(args: argparse.Namespace) -> int:
 @argument("--render-only", action="store_true",
           help="run nothing: rewrite OUT/results.json's scores, table.md, table_full.md, the figure and the --docs "
                "blocks from the existing OUT/results.json (v1 env)")
+@argument("--curves", action="append", default=[], metavar="NAME=GLOB",
+          help="also draw OUT/learning_curves.png (and .json) from training runs' eval/evaluations.npz: per NAME the "
+               "mean and min-max over its run folders (one per training seed), e.g. "
+               "ppo_scratch_v1='runs/ppo_scratch_v1/seed_*'; repeatable; without --policy nothing else is run")
 @(lambda func: policy_options(func, required=False))
 @backend_options
 @bogie_options
 def cmd_results(args: argparse.Namespace) -> int:
     from .evaluation.results import run, run_v2
 
+    if args.curves:
+        from .training.learning_curves import write_curves
+
+        print_json(write_curves(args.curves, Path(args.out)))
+        if not args.policy and not args.render_only:
+            return 0
     if args.render_only:
         from .evaluation.scoreboard import render
 

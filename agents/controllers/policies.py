@@ -38,7 +38,7 @@ from bogie_env.params import ConfigError
 from .classical import CLASSICAL
 #: The shipped policies, one folder per env version (``v0``, ``v1``).
 PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
-ALGORITHMS = ("ppo", "sac", "td3")
+ALGORITHMS = ("ppo", "sac", "td3", "recurrent_ppo")
 NORMALISATION_FILE = "vecnormalize.json"
 LEGACY_NORMALISATION_FILE = "vecnormalize.pkl"
 MANIFEST_FILE = "SHA256SUMS"
@@ -48,13 +48,25 @@ TRUST_HINT = ("an SB3 model file is code (loading it unpickles Python objects, w
 
 
 class SB3Policy:
-    """A trained SB3 model acting deterministically on normalised observations."""
+    """A trained SB3 model acting deterministically on normalised observations.
+
+    With memory (:mod:`bogie_agents.controllers.memory`) it keeps it per row: the last ``frame_stack``
+    normalised observations, or a recurrent model's LSTM state; ``reset(n, rows)`` starts the
+    given rows (all without ``rows``) afresh."""
 
     observation_type = "sensors"
 
     def __init__(self, model, obs_mean: np.ndarray | None, obs_var: np.ndarray | None, clip_obs: float, epsilon: float,
-                 name: str, env_config: dict | None = None) -> None:  # fmt: skip
+                 name: str, env_config: dict | None = None, frame_stack: int = 1) -> None:  # fmt: skip
+        from .memory import ObservationHistory, RecurrentState, is_recurrent
+
         self.model = model
+        self.frame_stack = int(frame_stack)
+        self.history = ObservationHistory(self.frame_stack) if self.frame_stack > 1 else None
+        self.recurrent = RecurrentState() if is_recurrent(model) else None
+        # one observation's shape (the model's input is frame_stack of them side by side)
+        shape = model.observation_space.shape
+        self.frame_shape = (shape[0] // self.frame_stack,) + tuple(shape[1:])
         self.obs_mean, self.obs_var = obs_mean, obs_var
         self.clip_obs, self.epsilon = clip_obs, epsilon
         self.name = name
@@ -62,7 +74,9 @@ class SB3Policy:
         self.observation_type = self.env_config.get("observation", {}).get("type", "sensors")
 
     def reset(self, n_envs: int, rows=None) -> None:
-        pass
+        for memory in (self.history, self.recurrent):
+            if memory is not None:
+                memory.reset(n_envs, rows)
 
     def normalise(self, obs: np.ndarray) -> np.ndarray:
         if self.obs_mean is None:
@@ -72,10 +86,16 @@ class SB3Policy:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=np.float32)
-        expected = self.model.observation_space.shape
+        expected = self.frame_shape
         if obs.shape[-len(expected):] != expected:
             raise ConfigError(f"policy {self.name!r} takes observations of shape {expected}; got {obs.shape[1:]}")
-        actions, _ = self.model.predict(self.normalise(obs), deterministic=True)
+        x = self.normalise(obs)
+        if self.history is not None:
+            x = self.history(x.reshape(-1, *expected)).reshape(*obs.shape[:-1], -1)
+        if self.recurrent is not None:
+            actions = self.recurrent.predict(self.model, x.reshape(-1, x.shape[-1]))
+            return np.asarray(actions, dtype=np.float32).reshape(*obs.shape[:-1], -1)
+        actions, _ = self.model.predict(x, deterministic=True)
         return np.asarray(actions, dtype=np.float32)
 
 
@@ -256,6 +276,10 @@ def load_sb3_policy(path: str | Path, trusted: bool = False, env_config: dict | 
         raise ConfigError(f"run config {str(config_path)!r} must hold a JSON object")
     algo = str(run_config.get("algo", "")).lower()
     classes = {"ppo": PPO, "sac": SAC, "td3": TD3}
+    if algo == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO
+
+        classes["recurrent_ppo"] = RecurrentPPO
     order = [classes[algo]] if algo in classes else [PPO, SAC, TD3]
     model, errors = None, []
     for cls in order:
@@ -265,16 +289,22 @@ def load_sb3_policy(path: str | Path, trusted: bool = False, env_config: dict | 
         except Exception as error:  # noqa: BLE001 - try the next algorithm class
             errors.append(f"{cls.__name__}: {type(error).__name__}: {str(error)[:200]}")
     if model is None:
-        raise ConfigError(f"could not load {str(zip_path)!r} as a PPO, SAC or TD3 model ({'; '.join(errors)})")
+        names = [c.__name__ for c in order]
+        names = " or ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else names)
+        raise ConfigError(f"could not load {str(zip_path)!r} as a {names} model ({'; '.join(errors)})")
+    from .memory import check_frame_stack
+
+    frame_stack = check_frame_stack(run_config.get("frame_stack") or 1, f"{str(config_path)!r}")
+    frame = (model.observation_space.shape[0] // frame_stack,)
     stats = {"mean": None, "var": None, "clip_obs": 10.0, "epsilon": 1e-8}
     if norm_path is not None:
         stats = load_normalisation(norm_path) if norm_path.suffix == ".json" else _load_legacy_pickle(norm_path)
-        if stats["mean"] is not None and stats["mean"].shape != model.observation_space.shape:
+        if stats["mean"] is not None and stats["mean"].shape != frame:
             raise ConfigError(f"{str(norm_path)!r} has statistics for {stats['mean'].size} observations but the model "
-                              f"{str(zip_path)!r} takes {model.observation_space.shape}")  # fmt: skip
+                              f"{str(zip_path)!r} takes {frame} (per frame)")  # fmt: skip
     run_env = run_config.get("env", {}) if isinstance(run_config.get("env", {}), dict) else {}
     network = SB3Policy(model, stats["mean"], stats["var"], stats["clip_obs"], stats["epsilon"], name=str(path),
-                        env_config=run_env)  # fmt: skip
+                        env_config=run_env, frame_stack=frame_stack)  # fmt: skip
     if run_config.get("residual") is None:
         return network
     from .residual import ResidualPolicy, WashedOutFeatures, check_residual_config
@@ -295,17 +325,19 @@ def check_shapes(policy, env_config: dict) -> None:
     from bogie_env.envs.task import HuntingTask
 
     task = HuntingTask(1, merge_config(env_config, {"observation": {"type": policy.observation_type}}))
-    pairs = [("observation", model.observation_space, task.observation_space), ("action", model.action_space, task.action_space)]
+    frame = getattr(getattr(policy, "network", policy), "frame_shape", model.observation_space.shape)  # one of frame_stack
+    pairs = [("observation", frame, task.observation_space.shape),
+             ("action", model.action_space.shape, task.action_space.shape)]  # fmt: skip
     if getattr(policy, "features", None) is not None:  # a residual on features: its filters take the env's observation
         pairs = pairs[1:]
         if getattr(getattr(policy.features, "filters", None), "n_obs", task.observation_space.shape[0]) != task.observation_space.shape[0]:
             raise ConfigError(f"policy {policy.name!r}: its feature filters take {policy.features.filters.n_obs} "
                               f"observations but the env config gives {task.observation_space.shape}")  # fmt: skip
-    for what, model_space, env_space in pairs:
-        if model_space.shape != env_space.shape:
+    for what, model_shape, env_shape in pairs:
+        if tuple(model_shape) != tuple(env_shape):
             raise ConfigError(
-                f"policy {policy.name!r} expects {what}s of shape {model_space.shape} but the env config gives "
-                f"{env_space.shape}; evaluate it with the env config it was trained on (its run's config.json: "
+                f"policy {policy.name!r} expects {what}s of shape {tuple(model_shape)} but the env config gives "
+                f"{tuple(env_shape)}; evaluate it with the env config it was trained on (its run's config.json: "
                 "actuator modes and observation settings)"
             )
 

@@ -194,6 +194,8 @@ class ResidualPolicy:
 
     def reset(self, n_envs: int, rows=None) -> None:
         self.baseline.reset(n_envs, rows)
+        if hasattr(self.network, "reset"):  # a network with memory (bogie_agents.controllers.memory)
+            self.network.reset(n_envs, rows)
         if self.features is not None:
             self.features.reset(n_envs, rows)
 

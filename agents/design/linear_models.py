@@ -120,6 +120,11 @@ def sb3_action_function(policy):
 
     from stable_baselines3.common.policies import ActorCriticPolicy
 
+    if getattr(policy, "history", None) is not None or getattr(policy, "recurrent", None) is not None:
+        from bogie_env.params import ConfigError
+
+        raise ConfigError(f"policy {getattr(policy, 'name', '?')!r} has memory (frame_stack or an LSTM): its linear "
+                          "model is not a static gain, and margins of such policies are not implemented")  # fmt: skip
     net = policy.model.policy
     # PPO/A2C: the actor's layers in float64 (SB3's own _predict casts observations to float32)
     double = isinstance(net, ActorCriticPolicy) and not net.squash_output

@@ -12,7 +12,9 @@ checkpoint interval; the evaluation history (``eval/evaluations.npz``) is restor
 ``best_model.zip`` is only replaced by a better evaluation. ``--no-resume`` moves an earlier run to
 ``OUT/previous/<UTC time>/``. The folder is locked (``OUT/.train.lock``) while a training runs.
 Every key of the agent config is validated (:func:`validate_run_config`). Files the run writes
-itself are written atomically.
+itself are written atomically. Memory: ``algo: recurrent_ppo`` (sb3-contrib's RecurrentPPO) or
+``frame_stack: K`` (:mod:`bogie_agents.controllers.memory`); ``eval.seed``: every evaluation runs the same
+episodes, for learning curves across training seeds (:mod:`bogie_agents.training.learning_curves`).
 """
 
 from __future__ import annotations
@@ -31,12 +33,15 @@ from bogie_env.envs.config import make_config
 from bogie_env.fileio import load_yaml, write_text_atomic
 from bogie_env.params import CONFIG_DIR, ConfigError
 
+from ..controllers.memory import RECURRENT_POLICY_KWARGS, check_memory_config, stack_env, unstack_env
 from ..controllers.policies import NORMALISATION_FILE, save_normalisation
 
-ALGOS = ("ppo", "sac", "td3")
+ALGOS = ("ppo", "sac", "td3", "recurrent_ppo")
+#: The on-policy algorithms (rollouts of n_envs x n_steps, no replay buffer).
+ON_POLICY = ("ppo", "recurrent_ppo")
 RUN_KEYS = {"algo", "seed", "total_timesteps", "n_envs", "env_id", "env", "eval_env", "vecnormalize", "policy",
             "policy_kwargs", "hyperparams", "eval", "checkpoint", "torch_threads", "max_wall_time_s", "residual",
-            "extra_envs"}  # fmt: skip
+            "extra_envs", "frame_stack"}  # fmt: skip
 EXTRA_ENV_KEYS = {"env_id", "n_envs", "env"}
 #: The env id a config without ``env_id`` trains on (the configs written before v1 existed).
 DEFAULT_ENV_ID = "Bogie/Hunting-v0"
@@ -50,7 +55,7 @@ def load_run_config(path: str | Path | None, algo: str | None) -> dict:
     """Read ``configs/agents/<algo>.yaml`` (or a given file) and validate its keys."""
     if path is None:
         if algo is None:
-            raise ConfigError("give --config FILE or --algo (ppo, sac, td3)")
+            raise ConfigError(f"give --config FILE or --algo ({', '.join(ALGOS)})")
         path = CONFIG_DIR / "agents" / f"{algo}.yaml"
     path = Path(path)
     if not path.is_file():
@@ -72,7 +77,7 @@ def load_run_config(path: str | Path | None, algo: str | None) -> dict:
 
 
 MAX_N_ENVS = 4096  # the vector env's cap (bogie_env.envs.config.MAX_NUM_ENVS would say the same)
-POLICY_KWARGS = {"net_arch", "activation_fn", "log_std_init", "ortho_init"}
+POLICY_KWARGS = {"net_arch", "activation_fn", "log_std_init", "ortho_init", *RECURRENT_POLICY_KWARGS}
 VECNORMALIZE_KEYS = {"norm_obs": bool, "norm_reward": bool, "clip_obs": float, "clip_reward": float, "gamma": float,
                      "epsilon": float}  # fmt: skip
 # hyperparameter -> (kind, low, high); kinds: "int", "float", "float|auto" (SAC's ent_coef)
@@ -96,7 +101,8 @@ HYPERPARAMS_OF = {
     "td3": {"learning_rate", "gamma", "batch_size", "buffer_size", "learning_starts", "tau", "train_freq",
             "gradient_steps", "policy_delay", "target_policy_noise", "target_noise_clip", "action_noise_sigma"},
 }  # fmt: skip
-SECTION_KEYS = {"eval": {"freq_steps", "n_envs", "episodes"}, "checkpoint": {"freq_steps"}}
+HYPERPARAMS_OF["recurrent_ppo"] = HYPERPARAMS_OF["ppo"]
+SECTION_KEYS = {"eval": {"freq_steps", "n_envs", "episodes", "seed"}, "checkpoint": {"freq_steps"}}
 
 
 def _bad(where: str, key: str, value, allowed: str) -> ConfigError:
@@ -168,10 +174,9 @@ def validate_run_config(config: dict, where: str = "") -> None:
             raise _bad(where, "vecnormalize.norm_obs", (config.get("vecnormalize") or {}).get("norm_obs", True),
                        "false with residual.features 'washed_out' (its features are scaled already, and a "
                        "mean subtracted from them would make the residual nonzero at rest)")  # fmt: skip
-        if residual["features"] == "washed_out" and algo != "ppo":
-            raise _bad(where, "algo", algo, "ppo with residual.features 'washed_out' (its odd actor)")
-    if config.get("policy", "MlpPolicy") != "MlpPolicy":
-        raise _bad(where, "policy", config.get("policy"), "MlpPolicy (the observations are flat vectors)")
+        if residual["features"] == "washed_out" and algo not in ON_POLICY:
+            raise _bad(where, "algo", algo, f"{' or '.join(ON_POLICY)} with residual.features 'washed_out' (its odd actor)")
+    check_memory_config(config, where)
     pk = _mapping(where, "policy_kwargs", config.get("policy_kwargs"), POLICY_KWARGS)
     if "net_arch" in pk:
         arch = pk["net_arch"]
@@ -207,7 +212,7 @@ def validate_run_config(config: dict, where: str = "") -> None:
                 raise _bad(where, name, value, f"'auto', 'auto_<initial value>' or a number in ({low:g}, {high:g}]")
         else:
             _float(where, name, value, low, high, low_open=key not in ("ent_coef", "learning_starts", "target_entropy"))
-    if algo == "ppo" and "batch_size" in hyper:
+    if algo in ON_POLICY and "batch_size" in hyper:
         rollout = hyper.get("n_steps", 2048) * total_envs(config)
         if hyper["batch_size"] > rollout:
             raise _bad(where, "hyperparams.batch_size", hyper["batch_size"],
@@ -215,6 +220,9 @@ def validate_run_config(config: dict, where: str = "") -> None:
     for section, known in SECTION_KEYS.items():
         values = _mapping(where, section, config.get(section), known)
         for key, value in values.items():
+            if key == "seed":  # eval.seed: every evaluation runs the episodes of this seed (agents/training/learning_curves.py)
+                _int(where, f"{section}.{key}", value, 0, 2**32 - 1)
+                continue
             _int(where, f"{section}.{key}", value, 1, 10**10 if key == "freq_steps" else MAX_N_ENVS)
 
 
@@ -308,7 +316,7 @@ def make_vec_envs(config: dict, seed: int):
     eval_env = VecMonitor(_residual(BogieHuntingSB3VecEnv(int(eval_cfg.get("n_envs", 4)), eval_config, seed=seed + 10_000),
                                     config, eval_config))  # fmt: skip
     eval_env = VecNormalize(eval_env, training=False, norm_obs=vn["norm_obs"], norm_reward=False, clip_obs=vn["clip_obs"])
-    return env, eval_env
+    return stack_env(env, config), stack_env(eval_env, config)  # frame_stack: the history on top of the normalisation
 
 
 class RunFolderLock:
@@ -367,7 +375,7 @@ def steps_learned(config: dict, total: int) -> int:
     (PPO) or ``n_envs x train_freq`` (SAC, TD3), so a budget is rounded up to a whole number of
     them. Training to this total keeps the progress bar's count and total consistent."""
     hyper = config.get("hyperparams") or {}
-    unit = total_envs(config) * int(hyper.get("n_steps", 2048) if config["algo"] == "ppo" else hyper.get("train_freq", 1))
+    unit = total_envs(config) * int(hyper.get("n_steps", 2048) if config["algo"] in ON_POLICY else hyper.get("train_freq", 1))
     return -(-total // unit) * unit
 
 
@@ -407,9 +415,11 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
                   verbose: int) -> dict:  # fmt: skip
     import torch
     from stable_baselines3 import PPO, SAC, TD3
-    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
     from stable_baselines3.common.utils import set_random_seed
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from .learning_curves import eval_callback
 
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     algo = config["algo"]
@@ -424,7 +434,10 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
     write_json_atomic(out / "config.json", run_config)
 
     env, eval_env = make_vec_envs(config, seed)
-    cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[algo]
+    if algo == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO as cls
+    else:
+        cls = {"ppo": PPO, "sac": SAC, "td3": TD3}[algo]
     hyper = copy.deepcopy(config.get("hyperparams") or {})
     if algo == "td3" and "action_noise_sigma" in hyper:
         from stable_baselines3.common.noise import NormalActionNoise
@@ -442,7 +455,8 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
         try:
             norm_path = zip_path.with_name(f"rl_model_vecnormalize_{steps}_steps.pkl")
             if norm_path.is_file():
-                env = VecNormalize.load(str(norm_path), env.venv)
+                normalised, restack = unstack_env(env)
+                env = restack(VecNormalize.load(str(norm_path), normalised.venv))
             model = cls.load(str(zip_path), env=env, device="cpu", tensorboard_log=str(out / "tb"))
             buffer = zip_path.with_name(f"rl_model_replay_buffer_{steps}_steps.pkl")
             if buffer.is_file() and hasattr(model, "load_replay_buffer"):
@@ -453,13 +467,16 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
             print(f"could not resume from {zip_path.name} ({error}); trying an older checkpoint")
             model = None
     if model is None:
-        model = cls(config.get("policy", "MlpPolicy"), env, seed=seed, verbose=verbose, device="cpu",
+        model = cls(config.get("policy", "MlpLstmPolicy" if algo == "recurrent_ppo" else "MlpPolicy"), env, seed=seed, verbose=verbose, device="cpu",
                     tensorboard_log=str(out / "tb"), policy_kwargs=_policy_kwargs(config), **hyper)  # fmt: skip
 
     if (config.get("residual") or {}).get("features") == "washed_out":
         from ..controllers.residual import odd_actor
 
+        from ..controllers.memory import zero_lstm_biases
+
         odd_actor(model)  # after a resume too: requires_grad is not saved
+        zero_lstm_biases(model)
     started = time.time()
     done_before = int(model.num_timesteps)
     eval_cfg = config.get("eval") or {}
@@ -483,7 +500,7 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
         def _on_step(self) -> bool:
             return self.budget_s is None or time.time() - started < self.budget_s
 
-    evaluation = EvalCallback(eval_env, n_eval_episodes=int(eval_cfg.get("episodes", 4)),
+    evaluation = eval_callback(eval_env, seed=eval_cfg.get("seed"), n_eval_episodes=int(eval_cfg.get("episodes", 4)),
                               eval_freq=max(1, int(eval_cfg.get("freq_steps", 200_000)) // n_envs),
                               best_model_save_path=str(out), log_path=str(out / "eval"), deterministic=True,
                               callback_on_new_best=SaveNormalisation(), verbose=verbose)  # fmt: skip
@@ -492,7 +509,7 @@ def _train_locked(config: dict, out: Path, total_timesteps: int | None, resume: 
     callbacks = CallbackList([
         CheckpointCallback(save_freq=max(1, int(ckpt_cfg.get("freq_steps", 500_000)) // n_envs),
                            save_path=str(out / "checkpoints"), save_vecnormalize=True,
-                           save_replay_buffer=algo != "ppo"),
+                           save_replay_buffer=algo not in ON_POLICY),
         evaluation,
         WallClock(config.get("max_wall_time_s")),
     ])  # fmt: skip
