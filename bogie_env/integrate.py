@@ -97,6 +97,41 @@ def taylor_lag_weights(table, dt, n_sub, stages, weights):
 
 
 @njit(cache=True, inline="always")
+def _step_scratch(scratch, out, lanes):
+    """The scratch rows an env step works in (states of a stage, channel outputs, generalised
+    forces, track samples, cant, speed, lagged channel states), with the step's mean power zeroed."""
+    for lane in range(lanes):
+        for k in range(N_CHANNELS):
+            out[lane, OUT_POWER, k] = 0.0
+    return scratch[XS], scratch[U], scratch[Q], scratch[YT], scratch[TRIG], scratch[SPEED, 0], scratch[LAGGED]
+
+
+@njit(cache=True, inline="always")
+def _stage_inputs(xs, ts, weights, w_row, w_lagged, t_sampled, lag, target, channels, track, s0, v0, accel, p, lagged, u, q, yt,
+                  trig, speed):  # fmt: skip
+    """A stage's inputs on every lane at time ``ts`` with lag weights of row ``w_row``: the
+    channels' lagged force and damping (unless row ``w_lagged`` has the same weights), their
+    saturated outputs and generalised forces, the track samples and cant (unless they are of
+    time ``t_sampled``) and the speed. Returns the new ``(w_lagged, t_sampled)``."""
+    weight = weights[w_row]
+    relag = w_lagged < 0 or (w_row != w_lagged and not _same_row(weights, w_row, w_lagged))
+    resample = ts != t_sampled
+    for lane in range(xs.shape[1]):
+        for k in range(N_CHANNELS):
+            if relag:
+                lagged[k, lane], lagged[N_CHANNELS + k, lane] = channel_lags(k, weight, lag[lane], target[lane], channels)
+            u[k, lane] = saturated_output(xs[:, lane], k, lagged[k, lane], lagged[N_CHANNELS + k, lane], channels)
+        generalised_forces(u[:, lane], q[:, lane])
+        if resample:
+            sample_track(track, s0[lane] + v0[lane] * ts + 0.5 * accel[lane] * ts * ts, p[P_L1, lane], yt[:, lane])
+            cos_sin = _cant_trig(yt[:, lane])
+            for k in range(6):
+                trig[k, lane] = cos_sin[k]
+        speed[lane] = v0[lane] + accel[lane] * ts
+    return w_row, ts
+
+
+@njit(cache=True, inline="always")
 def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, track, p, out, status, scratch):
     """Advance a lane block of bogies (:mod:`bogie_env.lanes`) by dt in n_sub RK4 substeps.
 
@@ -126,17 +161,8 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
     """
     lanes = x.shape[1]
     h = dt / n_sub
-    xs = scratch[XS]
-    u = scratch[U]
-    q = scratch[Q]
-    yt = scratch[YT]
-    trig = scratch[TRIG]
-    speed = scratch[SPEED, 0]
-    for lane in range(lanes):
-        for k in range(N_CHANNELS):
-            out[lane, OUT_POWER, k] = 0.0
+    xs, u, q, yt, trig, speed, lagged = _step_scratch(scratch, out, lanes)
     t_sampled = -1.0  # the stage time of the track samples in yt and trig (none yet: times are >= 0)
-    lagged = scratch[LAGGED]
     w_lagged = -1  # the row of weights of the lagged forces and dampings in lagged (none yet)
     for j in range(n_sub):
         t = j * h
@@ -154,28 +180,13 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
                         xs[i, lane] = x[i, lane] + step * scratch[K1 + stage - 1, i, lane]
                 ts = t + h if stage == 3 else t + 0.5 * h
             w_row = 3 * j + (stage + 1) // 2
-            weight = weights[w_row]
             # The channels' lagged force and damping depend on the weights only: stage 2 has stage
             # 1's row, and a substep's first stage the previous last one's values when they agree.
-            relag = w_lagged < 0 or (w_row != w_lagged and not _same_row(weights, w_row, w_lagged))
-            w_lagged = w_row
             # The track under the bogie depends on the stage time only: stage 2 is at stage 1's
             # time, and a substep's first stage is at the last one's time whenever j h + h rounds
             # to (j + 1) h (9 of 9 boundaries at 10 substeps per 10 ms): the same samples.
-            resample = ts != t_sampled
-            t_sampled = ts
-            for lane in range(lanes):
-                for k in range(N_CHANNELS):
-                    if relag:
-                        lagged[k, lane], lagged[N_CHANNELS + k, lane] = channel_lags(k, weight, lag[lane], target[lane], channels)
-                    u[k, lane] = saturated_output(xs[:, lane], k, lagged[k, lane], lagged[N_CHANNELS + k, lane], channels)
-                generalised_forces(u[:, lane], q[:, lane])
-                if resample:
-                    sample_track(track, s0[lane] + v0[lane] * ts + 0.5 * accel[lane] * ts * ts, p[P_L1, lane], yt[:, lane])
-                    cos_sin = _cant_trig(yt[:, lane])
-                    for k in range(6):
-                        trig[k, lane] = cos_sin[k]
-                speed[lane] = v0[lane] + accel[lane] * ts
+            w_lagged, t_sampled = _stage_inputs(xs, ts, weights, w_row, w_lagged, t_sampled, lag, target, channels, track,
+                                                s0, v0, accel, p, lagged, u, q, yt, trig, speed)  # fmt: skip
             _rhs_lanes(xs, speed, q, yt, trig, p, scratch[K1 + stage], scratch[FRAME])
             for lane in range(lanes):
                 _add_power(out[lane, OUT_POWER], u[:, lane], xs[:, lane], 6.0 if stage == 0 or stage == 3 else 3.0)
@@ -210,18 +221,9 @@ def _advance_lanes_taylor(x, v0, accel, s0, dt, n_sub, stages, lag, target, weig
     """
     lanes = x.shape[1]
     h = dt / n_sub
-    xs = scratch[XS]
-    u = scratch[U]
-    q = scratch[Q]
-    yt = scratch[YT]
-    trig = scratch[TRIG]
-    speed = scratch[SPEED, 0]
+    xs, u, q, yt, trig, speed, lagged = _step_scratch(scratch, out, lanes)
     k1 = scratch[K1]
-    for lane in range(lanes):
-        for k in range(N_CHANNELS):
-            out[lane, OUT_POWER, k] = 0.0
     t_sampled = -1.0
-    lagged = scratch[LAGGED]
     w_lagged = -1
     for j in range(n_sub):
         t = j * h
@@ -231,23 +233,8 @@ def _advance_lanes_taylor(x, v0, accel, s0, dt, n_sub, stages, lag, target, weig
         for stage in range(stages):
             ts = t + taylor_stage_time(stage, stages) * h
             w_row = stages * j + stage
-            weight = weights[w_row]
-            relag = w_lagged < 0 or (w_row != w_lagged and not _same_row(weights, w_row, w_lagged))
-            w_lagged = w_row
-            resample = ts != t_sampled
-            t_sampled = ts
-            for lane in range(lanes):
-                for k in range(N_CHANNELS):
-                    if relag:
-                        lagged[k, lane], lagged[N_CHANNELS + k, lane] = channel_lags(k, weight, lag[lane], target[lane], channels)
-                    u[k, lane] = saturated_output(xs[:, lane], k, lagged[k, lane], lagged[N_CHANNELS + k, lane], channels)
-                generalised_forces(u[:, lane], q[:, lane])
-                if resample:
-                    sample_track(track, s0[lane] + v0[lane] * ts + 0.5 * accel[lane] * ts * ts, p[P_L1, lane], yt[:, lane])
-                    cos_sin = _cant_trig(yt[:, lane])
-                    for k in range(6):
-                        trig[k, lane] = cos_sin[k]
-                speed[lane] = v0[lane] + accel[lane] * ts
+            w_lagged, t_sampled = _stage_inputs(xs, ts, weights, w_row, w_lagged, t_sampled, lag, target, channels, track,
+                                                s0, v0, accel, p, lagged, u, q, yt, trig, speed)  # fmt: skip
             _rhs_lanes(xs, speed, q, yt, trig, p, k1, scratch[FRAME])
             if stage == stages - 1:
                 for lane in range(lanes):

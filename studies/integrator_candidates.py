@@ -439,6 +439,13 @@ def onset_kmh(states: np.ndarray, v0: float, accel: float, threshold: float = 4.
     return float("nan")
 
 
+def _print_runs(methods, n_subs, model, plant, start, n_steps, cell) -> None:
+    """One line per method: ``cell(run)`` of its run at each substep count."""
+    for method in methods:
+        cells = [f"n_sub={n}: {cell(Stepper(method, n, model).run(plant, start, n_steps))}" for n in n_subs]
+        print(f"  {method:<8} " + " ".join(cells), flush=True)
+
+
 def nonlinear_part(n_subs: list[int], methods: list[str], quick: bool) -> None:
     model = BogieModel()
     alert = alignment_profile_at_level("alert")
@@ -475,12 +482,7 @@ def nonlinear_part(n_subs: list[int], methods: list[str], quick: bool) -> None:
     ref = reference(model, plant, start, n_steps)
     amp_ref = np.max(np.abs(ref[-200:, 0])) * 1e3
     print(f"limit cycle at 450 km/h, perfect track: y1 amplitude over the last 2 s of {n_steps * DT:g} s (mm); reference {amp_ref:.4f}")
-    for method in methods:
-        cells = []
-        for n in n_subs:
-            run = Stepper(method, n, model).run(plant, start, n_steps)
-            cells.append(f"n_sub={n}: {np.max(np.abs(run[-200:, 0])) * 1e3:8.4f}")
-        print(f"  {method:<8} " + " ".join(cells), flush=True)
+    _print_runs(methods, n_subs, model, plant, start, n_steps, lambda run: f"{np.max(np.abs(run[-200:, 0])) * 1e3:8.4f}")
     if quick:
         return
     # ramp onset (studies/step_accuracy.py's ramp)
@@ -491,12 +493,7 @@ def nonlinear_part(n_subs: list[int], methods: list[str], quick: bool) -> None:
     n_steps = 8000
     ref = reference(model, plant, x0, n_steps, n_sub=80)
     print(f"ramp 300 km/h + 1 m/s^2, 0.5 mm rms track: onset (1-s peak of |y1| > 4.5 mm), km/h; reference (RK4, 80 substeps) {onset_kmh(ref, 300 / KMH, 1.0):.1f}")
-    for method in methods:
-        cells = []
-        for n in n_subs:
-            run = Stepper(method, n, model).run(plant, x0, n_steps)
-            cells.append(f"n_sub={n}: {onset_kmh(run, 300 / KMH, 1.0):6.1f}")
-        print(f"  {method:<8} " + " ".join(cells), flush=True)
+    _print_runs(methods, n_subs, model, plant, x0, n_steps, lambda run: f"{onset_kmh(run, 300 / KMH, 1.0):6.1f}")
 
 
 # ---------------------------------------------------------------------------------
@@ -505,36 +502,11 @@ def nonlinear_part(n_subs: list[int], methods: list[str], quick: bool) -> None:
 
 
 def env_onsets(controller: str, conicity: float, method: str, n_sub: int, delay_steps: int, seeds: list[int]) -> np.ndarray:
-    """Hunting onset (km/h) of each seed on the v1 ramp with the env's integrator ``method``
-    (``integration.method``) at ``n_sub`` substeps; 600 where none was detected. The set-up of
-    ``studies/step_convergence.py``: passive bogie, or the gain-scheduled LQR on the full state."""
-    from bogie_agents.controllers import LQRController
-    from bogie_env.envs.config import make_config
-    from bogie_env.envs.task import HuntingTask
+    """Hunting onset (km/h) of each seed on the v1 ramp (``studies/step_convergence.py``'s
+    set-up: passive bogie, or the gain-scheduled LQR on the full state) with ``method``."""
+    from step_convergence import onset_speeds  # the sibling study script (studies/ is on sys.path)
 
-    acts = {"delay_steps": delay_steps}
-    config = {
-        "randomize": {},
-        "integration": {"n_sub": n_sub, "method": method},
-        "actuators": {name: acts for name in ("frame_lateral", "frame_yaw", "wheelset1_yaw", "wheelset2_yaw")},
-    }
-    if controller == "lqr":
-        config.update(observation={"type": "state"}, sensors={"enabled": False})
-    cfg = make_config(config, variant="v1_passive" if controller == "passive" else "v1")
-    task = HuntingTask(len(seeds), cfg)
-    task.seed_rows(np.arange(len(seeds)), seeds)
-    task.reset_rows(np.arange(len(seeds)), {"conicity": conicity})
-    policy = None
-    if controller == "lqr":
-        policy = LQRController(cfg, model=BogieModel(task.base_params.replace(lam=conicity)))
-        policy.reset(len(seeds))
-    done = np.zeros(len(seeds), dtype=bool)
-    while not np.all(done):
-        actions = policy.act(task.obs) if policy else np.zeros((len(seeds), task.action_dim))
-        task.step(actions)
-        done |= task.done
-    onset = task.onset_speed_kmh.copy()
-    return np.where(np.isnan(onset), cfg["speed"]["end_kmh"], onset)
+    return onset_speeds(controller, conicity, n_sub, delay_steps, seeds, method)
 
 
 def env_part(quick: bool) -> None:

@@ -44,12 +44,13 @@ def spectral_table(conicities: list[float], n_subs: list[int]) -> None:
     print(f"v0's step (stability only, 300-600 km/h): {stable} substeps")
 
 
-def onset_speeds(controller: str, conicity: float, n_sub: int, delay_steps: int, seeds: list[int]) -> np.ndarray:
-    """Hunting onset (km/h) of each seed on the v1 ramp; 600 where none was detected."""
+def onset_speeds(controller: str, conicity: float, n_sub: int, delay_steps: int, seeds: list[int], method: str = "rk4") -> np.ndarray:
+    """Hunting onset (km/h) of each seed on the v1 ramp with the env's integrator ``method``
+    (``integration.method``) at ``n_sub`` substeps; 600 where none was detected."""
     acts = {"delay_steps": delay_steps}
     config = {
         "randomize": {},
-        "integration": {"n_sub": n_sub},
+        "integration": {"n_sub": n_sub, "method": method},
         "actuators": {name: acts for name in ("frame_lateral", "frame_yaw", "wheelset1_yaw", "wheelset2_yaw")},
     }
     if controller == "lqr":
