@@ -15,7 +15,7 @@ import argparse
 import json
 from pathlib import Path
 
-from bogie_agents.scoreboard import score
+from bogie_agents.evaluation.scoreboard import score
 from bogie_env.params import ConfigError
 
 
