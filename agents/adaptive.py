@@ -90,7 +90,7 @@ class AdaptiveLQGController(Controller):
     def __init__(self, env_config: dict, conicities: Sequence[float] = BANK_CONICITIES, memory_s: float = 2.0,
                  hysteresis: float = 0.05, initial_conicity: float = 0.1, step_kmh: float = 10.0,
                  speed_tolerance_kmh: float = 2.0, floor: float = 1e-6, horizon_s: float = 0.3,
-                 score_sensors: Sequence[str] | None = None) -> None:  # fmt: skip
+                 score_sensors: Sequence[str] | None = None, score: str = "prediction") -> None:  # fmt: skip
         super().__init__(env_config)
         if not env_config.get("sensors", {}).get("enabled"):
             raise ValueError("AdaptiveLQGController: config 'sensors.enabled' = False; the bank is the v1 LQG on "
@@ -102,6 +102,9 @@ class AdaptiveLQGController(Controller):
         if memory_s <= 0 or not 0 <= hysteresis < 1 or not 0 <= floor < 1.0 / lams.size:
             raise ValueError(f"AdaptiveLQGController: memory_s = {memory_s!r} (allowed > 0), hysteresis = "
                              f"{hysteresis!r} (allowed [0, 1)), floor = {floor!r} (allowed [0, 1/n_models))")  # fmt: skip
+        if score not in ("prediction", "likelihood"):
+            raise ValueError(f"AdaptiveLQGController: score = {score!r}; allowed 'prediction' or 'likelihood'")
+        self.score = score
         self.conicities = lams
         self.log_lam = np.log(lams)
         self.forget = math.exp(-self.dt / memory_s)
@@ -133,11 +136,17 @@ class AdaptiveLQGController(Controller):
         self.c_stack = np.stack([model.cds for model in self.models])
         self.k_stack = np.stack([model.kalmans for model in self.models])
         self.gain_stack = np.stack([model.gains for model in self.models])
+        # the innovation covariance each filter assumes: C K = I - R S^-1, so S = (I - C K)^-1 R
+        r = np.diag(noise**2)
+        s_cov = np.linalg.solve(np.eye(self.n_meas) - self.c_stack @ self.k_stack, r)
+        s_cov = 0.5 * (s_cov + s_cov.swapaxes(-1, -2))
+        self.sinv_stack = np.linalg.inv(s_cov)
+        self.logdet_stack = np.linalg.slogdet(s_cov)[1]
         assert self.ab_stack.shape[:2] == (len(lams), n_speeds)
         self.reset(0)
 
     # ---- state --------------------------------------------------------------------------------
-    _STACKS = ("ab", "c", "k", "gain")
+    _STACKS = ("ab", "c", "k", "gain", "sinv", "logdet")
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         m = len(self.conicities)
@@ -168,9 +177,9 @@ class AdaptiveLQGController(Controller):
         pos = (v - grid[0]) / (grid[1] - grid[0])
         i0 = np.clip(np.floor(pos).astype(int), 0, len(grid) - 1)
         i1 = np.clip(i0 + 1, 0, len(grid) - 1)
-        w = (pos - i0)[:, None, None, None]
         for name in self._STACKS:
             stack = getattr(self, f"{name}_stack")
+            w = (pos - i0).reshape((-1,) + (1,) * (stack.ndim - 1))
             self.rows_of[name][rows] = (1 - w) * stack[:, i0].swapaxes(0, 1) + w * stack[:, i1].swapaxes(0, 1)
         self.cached_speed[rows] = speed_kmh[rows]
 
@@ -221,10 +230,16 @@ class AdaptiveLQGController(Controller):
         prior = np.matmul(ab, np.concatenate([self.estimates[..., None], u], axis=2))
         innovation = y[:, None, :, None] - np.matmul(c, prior)
         self.estimates = (prior + np.matmul(k, innovation))[..., 0]
+        self.innovation = innovation[..., 0]  # (n, n_models, n_meas): this step's, for studies and tests
         # the multi-step predictor: free-running from the filter's estimate, restarted every horizon
         self.predictions = np.matmul(ab, np.concatenate([self.predictions[..., None], u], axis=2))[..., 0]
         error = y[:, None, :] - np.matmul(c, self.predictions[..., None])[..., 0]
-        self.scores = self.forget * self.scores + np.einsum("nmp,p->nm", error**2, self.weight)
+        if self.score == "likelihood":
+            e = innovation[..., 0]
+            term = np.einsum("nmp,nmpq,nmq->nm", e, self.rows_of["sinv"], e) + self.rows_of["logdet"]
+        else:
+            term = np.einsum("nmp,p->nm", error**2, self.weight)
+        self.scores = self.forget * self.scores + term
         self.clock += 1
         restart = self.clock % self.horizon_steps == 0
         self.predictions[restart] = self.estimates[restart]
