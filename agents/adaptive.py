@@ -5,7 +5,7 @@ bank of the v1 LQG designs (:class:`bogie_agents.controllers.LQGController` with
 model: loop delay registers, 40 Hz sensor filters, sensor-bias states), one per conicity of
 :data:`BANK_CONICITIES`, runs every design's steady-state Kalman filter on the same sensor
 stream and the same applied commands, scores each model by its exponentially forgotten
-multi-step (0.3 s) prediction error, and commands with the LQG of the model that predicts best (switching with
+innovation likelihood (a multiple-model adaptive estimator), and commands with the LQG of the model that predicts best (switching with
 hysteresis). The conicity estimate is the vertex of the parabola through the best model's score
 and its neighbours' in log-conicity. Everything is batched over rows.
 """
@@ -61,27 +61,26 @@ class AdaptiveLQGController(Controller):
     parts or faults. **What it sees**: the six v1 sensors and the measured speed (observation
     type ``sensors``), on which every model's gains and filter are scheduled.
 
-    Per step and row, model ``i`` (its sampled plant ``A_i, B_i, C_i`` and Kalman gain ``K_i``
-    at the measured speed, interpolated between design speeds) filters: ``z_i^- = A_i z_i +
-    B_i u`` with the command ``u`` actually applied, ``z_i = z_i^- + K_i (y - C_i z_i^-)``. Its
-    score is a multi-step prediction error: a predictor ``p_i`` runs the model free,
-    ``p_i <- A_i p_i + B_i u``, restarted from the filter's estimate every ``horizon_s`` (0.3 s,
-    about a hunting period at 2-10 Hz), and ``J_i <- a J_i + (y - C_i p_i)' W (y - C_i p_i)``,
-    ``a = exp(-dt / memory_s)``. One-step innovations do not separate the models: the filters'
-    gains are high (their process noise covers the track forcing), so every filter predicts one
-    step ahead about equally well; over a fraction of a period the model's dynamics, which the
-    conicity sets (the kinematic frequency goes as its square root), dominate. ``W``: the
-    inverse of the sensor noise variances the filters assume (the same for every model; the
-    sensors of ``score_sensors`` only, if given). The command is ``-G_s z_s`` of the selected
-    model ``s``: the best-scoring one, switched to only when its score is below ``1 -
-    hysteresis`` times the selected one's (no chattering between neighbours). Before any
-    evidence (after a reset) the selected model is ``initial_conicity``'s nearest.
-    ``estimate_conicity``: the vertex, in log-conicity, of the parabola through the best
-    model's score and its neighbours' (clipped to those neighbours).
+    Per step and row, model ``i`` (its sampled plant ``A_i, B_i, C_i``, Kalman gain ``K_i`` and
+    LQR gain ``G_i`` at the measured speed, interpolated between design speeds) filters on the
+    command ``u`` actually applied: ``z_i^- = A_i z_i + B_i u``, ``e_i = y - C_i z_i^-``,
+    ``z_i = z_i^- + K_i e_i``. Its score (``score="likelihood"``, the default) is the negative
+    log-likelihood of its innovations under the covariance its filter assumes, ``S_i = (I - C_i
+    K_i)^-1 R`` (``R``: the sensor noise of the LQG design), exponentially forgotten:
+    ``J_i <- a J_i + e_i' S_i^-1 e_i + log det S_i``, ``a = exp(-dt / memory_s)`` (2 s: the
+    conicity changes over months, the forgetting lets a wrong start be left). ``posterior``:
+    ``exp(-(J_i - min J) / 2)`` normalised and floored at ``floor``, the multiple-model
+    adaptive estimator's weights with the forgetting. ``score="prediction"`` scores instead the
+    error of a free-running ``horizon_s`` (0.3 s) predictor restarted from each filter's
+    estimate, weighted by ``R^-1`` (``score_sensors``: only those sensors).
 
-    Weights: ``posterior`` gives ``exp(-(J_i - min J) / 2)`` normalised, floored at
-    ``floor``: the tempered likelihood of each model over the memory (for studies; the command
-    does not blend).
+    The command is ``-G_s z_s`` of the selected model ``s``: the most probable one, switched to
+    only when its posterior odds against the selected one exceed ``switch_odds`` (100: ``J_s -
+    J_best > 2 ln 100``; with ``score="prediction"``, when its score is below ``1 -
+    hysteresis`` times the selected one's): no chattering between neighbours; each filter keeps running when not selected, so a switch starts from its
+    own converged estimate. Before any evidence (after a reset) the selected model is
+    ``initial_conicity``'s nearest. ``estimate_conicity``: the vertex, in log-conicity, of the
+    parabola through the best model's score and its neighbours' (clipped to those neighbours).
     """
 
     name = "adaptive_lqg"
@@ -90,7 +89,7 @@ class AdaptiveLQGController(Controller):
     def __init__(self, env_config: dict, conicities: Sequence[float] = BANK_CONICITIES, memory_s: float = 2.0,
                  hysteresis: float = 0.05, initial_conicity: float = 0.1, step_kmh: float = 10.0,
                  speed_tolerance_kmh: float = 2.0, floor: float = 1e-6, horizon_s: float = 0.3,
-                 score_sensors: Sequence[str] | None = None, score: str = "prediction") -> None:  # fmt: skip
+                 score_sensors: Sequence[str] | None = None, score: str = "likelihood", switch_odds: float = 100.0) -> None:  # fmt: skip
         super().__init__(env_config)
         if not env_config.get("sensors", {}).get("enabled"):
             raise ValueError("AdaptiveLQGController: config 'sensors.enabled' = False; the bank is the v1 LQG on "
@@ -105,6 +104,9 @@ class AdaptiveLQGController(Controller):
         if score not in ("prediction", "likelihood"):
             raise ValueError(f"AdaptiveLQGController: score = {score!r}; allowed 'prediction' or 'likelihood'")
         self.score = score
+        if not switch_odds >= 1.0:
+            raise ValueError(f"AdaptiveLQGController: switch_odds = {switch_odds!r}; allowed >= 1")
+        self.switch_odds = switch_odds
         self.conicities = lams
         self.log_lam = np.log(lams)
         self.forget = math.exp(-self.dt / memory_s)
@@ -245,7 +247,11 @@ class AdaptiveLQGController(Controller):
         self.predictions[restart] = self.estimates[restart]
         best = np.argmin(self.scores, axis=1)
         rows = np.arange(n)
-        switch = self.scores[rows, best] < (1.0 - self.hysteresis) * self.scores[rows, self.selected]
+        current = self.scores[rows, self.selected]
+        if self.score == "likelihood":  # the posterior odds of the best model against the selected one
+            switch = current - self.scores[rows, best] > 2.0 * math.log(self.switch_odds)
+        else:
+            switch = self.scores[rows, best] < (1.0 - self.hysteresis) * current
         self.selected = np.where(switch, best, self.selected)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
