@@ -1,20 +1,23 @@
 """The classical controllers by name: the names :func:`bogie_agents.controllers.policies.load_policy` and a
 residual policy's ``baseline`` (:mod:`bogie_agents.controllers.residual`) accept.
 
-- ``passive``, ``skyhook``, ``lqr``, ``lqg``: :mod:`bogie_agents.controllers.lqr`;
+- ``passive``, ``skyhook``, ``lqr``, ``lqg``, ``lqg_rate``: :mod:`bogie_agents.controllers.lqr`;
 - ``robust_damping``: :mod:`bogie_agents.controllers.robust`;
-- ``robust_steering``: ``robust_damping`` plus the curving assist of :mod:`bogie_agents.controllers.curving_assist`.
+- ``robust_steering``: ``robust_damping`` plus the curving assist of :mod:`bogie_agents.controllers.curving_assist`;
+- ``adaptive_lqg``: :mod:`bogie_agents.controllers.adaptive` (told no conicity: estimates it online);
+- ``privileged``: :mod:`bogie_agents.controllers.privileged` (the reference told the true scenario; not a baseline).
 """
 
 from __future__ import annotations
 
-from .lqr import LQGController, LQRController, PassiveController, RateAwareLQGController, SkyhookController
+from .adaptive import AdaptiveLQGController
 from .curving_assist import SteeringController
+from .lqr import LQGController, LQRController, PassiveController, RateAwareLQGController, SkyhookController
 from .privileged import PrivilegedController
 from .robust import RobustDampingController
 
 #: name -> controller class (each takes the env config).
 CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": LQRController, "lqg": LQGController,
-             "lqg_rate": RateAwareLQGController,
+             "lqg_rate": RateAwareLQGController, "adaptive_lqg": AdaptiveLQGController,
              "robust_damping": RobustDampingController, "robust_steering": SteeringController,
              "privileged": PrivilegedController}
