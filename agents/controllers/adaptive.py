@@ -22,7 +22,7 @@ import numpy as np
 from bogie_env.envs import task as T
 from bogie_env.envs.config import make_config, merge_config
 
-from .lqr import Controller, LQGController
+from .lqr import Controller, LQGController, RateAwareLQGController
 
 #: The bank: the protocol's conicity grid (a conicity between two values is estimated by the
 #: score's parabola in log-conicity, ``estimate_conicity``).
@@ -40,14 +40,14 @@ def _config_key(env_config: dict) -> str:
     return json.dumps(cfg, sort_keys=True, default=str)
 
 
-def bank_design(env_config: dict, conicity: float, step_kmh: float) -> LQGController:
+def bank_design(env_config: dict, conicity: float, step_kmh: float, rate_weight: float = 0.0) -> LQGController:
     """The v1 LQG designed for ``env_config``'s bogie with its conicity replaced by ``conicity``
-    (cached per process)."""
-    key = (_config_key(env_config), round(float(conicity), 12), float(step_kmh))
+    (``rate_weight`` > 0: with the force-rate cost of ``lqg_rate``; cached per process)."""
+    key = (_config_key(env_config), round(float(conicity), 12), float(step_kmh), float(rate_weight))
     if key not in _DESIGN_CACHE:
         overrides = {**env_config.get("bogie_overrides", {}), "lam": float(conicity)}
         cfg = make_config(merge_config(env_config, {"bogie_overrides": overrides}))
-        _DESIGN_CACHE[key] = LQGController(cfg, sensor_model=True, step_kmh=step_kmh)
+        _DESIGN_CACHE[key] = LQGController(cfg, sensor_model=True, step_kmh=step_kmh, rate_weight=rate_weight)
     return _DESIGN_CACHE[key]
 
 
@@ -85,6 +85,9 @@ class AdaptiveLQGController(Controller):
 
     name = "adaptive_lqg"
     observation_type = "sensors"
+    knows = "no conicity"  # what the results table says it is told
+    #: the bank's force-rate weight (0: ``lqg``'s designs)
+    rate_weight = 0.0
 
     def __init__(self, env_config: dict, conicities: Sequence[float] = BANK_CONICITIES, memory_s: float = 2.0,
                  hysteresis: float = 0.05, initial_conicity: float = 0.1, step_kmh: float = 10.0,
@@ -115,7 +118,7 @@ class AdaptiveLQGController(Controller):
         self.floor = floor
         self.speed_tolerance_kmh = speed_tolerance_kmh
         self.initial_index = int(np.argmin(np.abs(self.log_lam - math.log(initial_conicity))))
-        self.models = [bank_design(env_config, lam, step_kmh) for lam in lams]
+        self.models = [bank_design(env_config, lam, step_kmh, self.rate_weight) for lam in lams]
         ref = self.models[0]
         self.speeds_kmh = ref.speeds_kmh
         self.n_act, self.n_aug = ref.n_act, ref.n_aug
@@ -262,3 +265,11 @@ class AdaptiveLQGController(Controller):
         actions = np.clip(-np.einsum("nij,nj->ni", gain, z), -1.0, 1.0)
         self.last_action = actions
         return actions.astype(np.float32)
+
+
+class AdaptiveRateLQGController(AdaptiveLQGController):
+    """:class:`AdaptiveLQGController` with a bank of ``lqg_rate`` designs (the force-rate cost,
+    :class:`bogie_agents.controllers.lqr.RateAwareLQGController`): told no conicity."""
+
+    name = "adaptive_lqg_rate"
+    rate_weight = RateAwareLQGController.rate_weight

@@ -4,13 +4,13 @@ residual policy's ``baseline`` (:mod:`bogie_agents.controllers.residual`) accept
 - ``passive``, ``skyhook``, ``lqr``, ``lqg``, ``lqg_rate``: :mod:`bogie_agents.controllers.lqr`;
 - ``robust_damping``: :mod:`bogie_agents.controllers.robust`;
 - ``robust_steering``: ``robust_damping`` plus the curving assist of :mod:`bogie_agents.controllers.curving_assist`;
-- ``adaptive_lqg``: :mod:`bogie_agents.controllers.adaptive` (told no conicity: estimates it online);
+- ``adaptive_lqg``, ``adaptive_lqg_rate``: :mod:`bogie_agents.controllers.adaptive` (told no conicity: estimates it online);
 - ``privileged``: :mod:`bogie_agents.controllers.privileged` (the reference told the true scenario; not a baseline).
 """
 
 from __future__ import annotations
 
-from .adaptive import AdaptiveLQGController
+from .adaptive import AdaptiveLQGController, AdaptiveRateLQGController
 from .curving_assist import SteeringController
 from .lqr import LQGController, LQRController, PassiveController, RateAwareLQGController, SkyhookController
 from .privileged import PrivilegedController
@@ -19,5 +19,6 @@ from .robust import RobustDampingController
 #: name -> controller class (each takes the env config).
 CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": LQRController, "lqg": LQGController,
              "lqg_rate": RateAwareLQGController, "adaptive_lqg": AdaptiveLQGController,
+             "adaptive_lqg_rate": AdaptiveRateLQGController,
              "robust_damping": RobustDampingController, "robust_steering": SteeringController,
              "privileged": PrivilegedController}
