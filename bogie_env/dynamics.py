@@ -241,15 +241,21 @@ def _sample(yt, k):
 
 
 @njit(cache=True, inline="always")
+def _cant_trig_frame(yt):
+    """(cos, sin) of the cant angle under the frame, as :func:`_cant_trig`."""
+    cant_b = _sample(yt, CANT_FRAME)
+    return (1.0, cant_b) if cant_b == 0.0 else (np.cos(cant_b), np.sin(cant_b))
+
+
+@njit(cache=True, inline="always")
 def _cant_trig(yt):
     """(cos, sin) of the cant angle under the frame, wheelset 1 and wheelset 2, flattened: the only
     transcendental calls of the right-hand side, apart so that SIMD lanes can make them one lane
     at a time (:func:`_rhs_lanes`). Without cant (straight track, uncanted
     curves) they are (1, cant) without the calls: cos(+-0) = 1 and sin(+-0) = +-0 exactly."""
-    cant_b = _sample(yt, CANT_FRAME)
+    cos_b, sin_b = _cant_trig_frame(yt)
     cant1 = _sample(yt, CANT_WHEELSET1)
     cant2 = _sample(yt, CANT_WHEELSET1 + 1)
-    cos_b, sin_b = (1.0, cant_b) if cant_b == 0.0 else (np.cos(cant_b), np.sin(cant_b))
     cos1, sin1 = (1.0, cant1) if cant1 == 0.0 else (np.cos(cant1), np.sin(cant1))
     cos2, sin2 = (1.0, cant2) if cant2 == 0.0 else (np.cos(cant2), np.sin(cant2))
     return cos_b, sin_b, cos1, sin1, cos2, sin2
@@ -262,6 +268,28 @@ def _unbalanced_acceleration(V, kappa, cos_cant, sin_cant):
 
 
 @njit(cache=True, inline="always")
+def _primary_lateral(i, x, V, yt, p):
+    """Wheelset i's track curvature, the heading of its track axes seen from the frame's and
+    that heading's rate (Eqs. C6-C7, trapezoidal in curvature), and its primary lateral spring
+    and damper forces (Eqs. 40-41, corrected; Eq. C8 in curves): the part of
+    :func:`_wheelset_rhs` that the frame's lateral equation needs, without the contact."""
+    L1 = p[P_L1]
+    L2 = p[P_L2]
+    kappa_b = _sample(yt, CURVATURE_FRAME)
+    o = 8 * i
+    side = 1.0 - 2.0 * i  # +1 front (x = +L1), -1 rear
+    kappa = _sample(yt, CURVATURE_WHEELSET1 + i)
+    d = side * L1
+    heading = 0.5 * d * (kappa_b + kappa)
+    offset = d * d * (2.0 * kappa_b + kappa) / 6.0
+    heading_rate = V * (kappa - kappa_b)
+    offset_rate = V * (heading - d * kappa_b)
+    spring_y = 2.0 * p[P_KPY] * (x[o] + offset - x[16] - side * L1 * x[18])
+    damper_y = 2.0 * p[P_CPY] * (x[o + 1] + offset_rate - x[17] - side * L2 * x[19])
+    return kappa, heading, heading_rate, spring_y, damper_y
+
+
+@njit(cache=True, inline="always")
 def _wheelset_rhs(i, x, V, Q, yt, trig, p, out):
     """Eqs. (3)-(6) of wheelset i (0 front, 1 rear) into out[8 i : 8 i + 8], with the cants' cos
     and sin ``trig`` (:func:`_cant_trig`); returns its reactions on the frame, (lateral force,
@@ -270,8 +298,6 @@ def _wheelset_rhs(i, x, V, Q, yt, trig, p, out):
     L1 = p[P_L1]
     L2 = p[P_L2]
     b1sq = p[P_B1] * p[P_B1]
-    Kpy2 = 2.0 * p[P_KPY]
-    Cpy2 = 2.0 * p[P_CPY]
     yaw_k = 2.0 * p[P_KPX] * b1sq
     yaw_c = 2.0 * p[P_CPX] * b1sq
     roll_k = 2.0 * p[P_KPZ] * b1sq
@@ -282,27 +308,16 @@ def _wheelset_rhs(i, x, V, Q, yt, trig, p, out):
     dyb = x[17]
     psib = x[18]
     dpsib = x[19]
-    kappa_b = _sample(yt, CURVATURE_FRAME)
     o = 8 * i
     dy = x[o + 1]
     dpsi = x[o + 5]
     dphi = x[o + 7]
     side = 1.0 - 2.0 * i  # +1 front (x = +L1), -1 rear
-    kappa = _sample(yt, CURVATURE_WHEELSET1 + i)
+    kappa, heading, heading_rate, spring_y, damper_y = _primary_lateral(i, x, V, yt, p)
     accel = _unbalanced_acceleration(V, kappa, trig[2 + 2 * i], trig[3 + 2 * i])  # Eq. (C1)
-    # The wheelset's track axes seen from the frame's (Eqs. C6-C7, trapezoidal in curvature):
-    # heading, lateral offset of the centreline, and their rates.
-    d = side * L1
-    heading = 0.5 * d * (kappa_b + kappa)
-    offset = d * d * (2.0 * kappa_b + kappa) / 6.0
-    heading_rate = V * (kappa - kappa_b)
-    offset_rate = V * (heading - d * kappa_b)
     lateral, vertical, yaw, roll = _wheel_rail_forces(
         x[o] - yt[ALIGNMENT_WHEELSET1 + i], dy, x[o + 4], dpsi, x[o + 6], dphi, inv_v, kappa, p
     )
-    # Suspension (Eqs. 40-43, corrected; Eq. C8 in curves).
-    spring_y = Kpy2 * (x[o] + offset - yb - side * L1 * psib)
-    damper_y = Cpy2 * (dy + offset_rate - dyb - side * L2 * dpsib)
     yaw_moment = yaw_k * (x[o + 4] + heading - psib) + yaw_c * (dpsi + heading_rate - dpsib)
     # Eq. (3) lateral, with the unbalanced acceleration (Eq. C2)
     out[o] = dy
@@ -330,6 +345,30 @@ def _wheelset_rhs(i, x, V, Q, yt, trig, p, out):
 
 
 @njit(cache=True, inline="always")
+def _frame_lateral(x, V, Q, yt, cos_b, sin_b, p, frame_force):
+    """Eq. (1): the frame's lateral acceleration, with the wheelsets' reactions ``frame_force``
+    and the unbalanced acceleration of the frame and the car body's share (Eqs. C1-C3)."""
+    accel_b = _unbalanced_acceleration(V, _sample(yt, CURVATURE_FRAME), cos_b, sin_b)
+    carried = 2.0 * p[P_WPA] / GRAVITY - 2.0 * p[P_MW] - p[P_MB]
+    if carried < 0.0:
+        carried = 0.0
+    return (frame_force - 2.0 * p[P_KSY] * x[16] - 2.0 * p[P_CSY] * x[17] + Q[0] - (p[P_MB] + carried) * accel_b) / p[P_MB]
+
+
+@njit(cache=True, inline="always")
+def frame_lateral_accel(x, V, Q, yt, p):
+    """The frame's lateral acceleration, out[17] of :func:`_rhs_row`, without the wheel-rail
+    contact (the frame feels the wheelsets through the primary suspension only): the same
+    functions in the same order, so the same bits at a fraction of the cost."""
+    frame_force = 0.0 * x[16]
+    for i in range(2):
+        _, _, _, spring_y, damper_y = _primary_lateral(i, x, V, yt, p)
+        frame_force += spring_y + damper_y
+    cos_b, sin_b = _cant_trig_frame(yt)
+    return _frame_lateral(x, V, Q, yt, cos_b, sin_b, p, frame_force)
+
+
+@njit(cache=True, inline="always")
 def _frame_rhs(x, V, Q, yt, trig, p, frame_force, frame_moment, out):
     """Eqs. (1)-(2) with (44)-(45) into out[16:20]: the frame on the secondary suspension to a car
     body that follows the track, with the wheelsets' reactions ``frame_force``, ``frame_moment``;
@@ -339,12 +378,8 @@ def _frame_rhs(x, V, Q, yt, trig, p, frame_force, frame_moment, out):
     dyb = x[17]
     psib = x[18]
     dpsib = x[19]
-    accel_b = _unbalanced_acceleration(V, _sample(yt, CURVATURE_FRAME), trig[0], trig[1])
-    carried = 2.0 * p[P_WPA] / GRAVITY - 2.0 * p[P_MW] - p[P_MB]
-    if carried < 0.0:
-        carried = 0.0
     out[16] = dyb
-    out[17] = (frame_force - 2.0 * p[P_KSY] * yb - 2.0 * p[P_CSY] * dyb + Q[0] - (p[P_MB] + carried) * accel_b) / p[P_MB]
+    out[17] = _frame_lateral(x, V, Q, yt, trig[0], trig[1], p, frame_force)
     out[18] = dpsib
     out[19] = (
         frame_moment

@@ -182,6 +182,21 @@ def standard_normal(state, n):
     return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
 
 
+@njit(cache=True, inline="always")
+def sense_row(n, obs, filtered, bias, scale, rng_state, table, start, bound):
+    """Measure the clean observation ``obs[n, :N_SENSED]`` of row ``n`` in place (:func:`sense_rows`).
+    A row's measurement depends on that row's arrays only, so rows may be measured in any
+    order or on any thread with the same bits."""
+    for j in range(table.shape[0]):
+        clean = obs[n, j]
+        if start:
+            filtered[n, j] = clean
+        else:
+            filtered[n, j] += table[j, S_FILTER_WEIGHT] * (clean - filtered[n, j])
+        error = bias[n, j] + table[j, S_NOISE_RMS] * standard_normal(rng_state, n)
+        obs[n, j] = min(max(filtered[n, j] + error / scale[n, j], -bound), bound)
+
+
 @njit(cache=True)
 def sense_rows(rows, obs, filtered, bias, scale, rng_state, table, start, bound):
     """Measure the clean observations ``obs[n, :N_SENSED]`` of ``rows`` in place.
@@ -191,11 +206,4 @@ def sense_rows(rows, obs, filtered, bias, scale, rng_state, table, start, bound)
     of one observation unit; ``start``: the rows' first sample (the filter starts settled).
     """
     for n in rows:
-        for j in range(table.shape[0]):
-            clean = obs[n, j]
-            if start:
-                filtered[n, j] = clean
-            else:
-                filtered[n, j] += table[j, S_FILTER_WEIGHT] * (clean - filtered[n, j])
-            error = bias[n, j] + table[j, S_NOISE_RMS] * standard_normal(rng_state, n)
-            obs[n, j] = min(max(filtered[n, j] + error / scale[n, j], -bound), bound)
+        sense_row(n, obs, filtered, bias, scale, rng_state, table, start, bound)

@@ -44,7 +44,7 @@ from ..actuators import (
     healthy_command,
     saturation,
 )
-from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, _guiding_forces_row, rhs_row_call, state_index
+from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, _guiding_forces_row, frame_lateral_accel, state_index
 from ..integrate import FASTMATH, METHOD_STAGES, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, stable_substep
 from ..params import BogieParams, ConfigError
 from ..simulator import (
@@ -65,7 +65,7 @@ from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, CANT_FRAME, CURVAT
 from . import scenario as scenarios
 from .config import MAX_ACCEL, MAX_NUM_ENVS, bogie_params, make_config, max_steps_for
 from .routes import RouteLayout, build_layout
-from .sensors import N_SENSED, SENSOR_NAMES, draw_biases, sense_rows, sensor_table
+from .sensors import N_SENSED, SENSOR_NAMES, draw_biases, sense_row, sense_rows, sensor_table
 
 KMH = 3.6
 _FLOAT_TYPES = (np.dtype(np.float32), np.dtype(np.float64))
@@ -272,14 +272,13 @@ def _observe(obs, x, v1, p, track_sample, u_end, channels, cfg, state_scales, sc
             obs[i] = _clip(x[i] / state_scales[i], OBS_BOUND)
         m = N_STATES
     else:
-        # frame lateral acceleration needs the right-hand side at the end state
+        # the frame's lateral acceleration: its equation of the right-hand side at the end state
         q = scratch[1, :N_INPUTS]
         generalised_forces(u_end, q)
-        rhs_row_call(x, v1, q, track_sample, p, scratch[0])
         L1 = p[P_L1]
         delta = p[P_DELTA]
         psib = x[PSIB]
-        obs[SENSOR_FRAME_LATERAL_ACCEL] = _clip(scratch[0, DYB] / ACCEL_SCALE, OBS_BOUND)
+        obs[SENSOR_FRAME_LATERAL_ACCEL] = _clip(frame_lateral_accel(x, v1, q, track_sample, p) / ACCEL_SCALE, OBS_BOUND)
         obs[SENSOR_FRAME_YAW_RATE] = _clip(x[DPSIB] / YAW_RATE_SCALE, OBS_BOUND)
         obs[SENSOR_WHEELSET1_LATERAL] = _clip((x[Y1] - x[YB] - L1 * psib) / delta, OBS_BOUND)
         obs[SENSOR_WHEELSET2_LATERAL] = _clip((x[Y2] - x[YB] + L1 * psib) / delta, OBS_BOUND)
@@ -335,14 +334,24 @@ def _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, 
 
 # Not inlined: the serial call and the parallel loop run this one compilation of a run of rows.
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health):
+def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing):
     """One env step of rows [start, stop): actions -> commands (through each row's actuator
-    health) -> the simulator's interval -> task."""
+    health) -> the simulator's interval -> task -> sensors (``sensing``: :meth:`HuntingTask.sensing`)."""
     _commands(start, stop, sim_rows, channels, action, health)
     advance_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages)
     scratch = np.empty((2, N_STATES))
     details = np.empty((2, len(DETAIL_NAMES)))
     _task_run(start, stop, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, details)
+    _sense_run(start, stop, task_rows[1], sensing)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
+def _sense_run(start, stop, obs, sensing):
+    """The sensor model (:func:`bogie_env.envs.sensors.sense_row`) of rows [start, stop) after their step; off: nothing."""
+    enabled, filtered, bias, scale, rng_state, table = sensing
+    if enabled:
+        for n in range(start, stop):
+            sense_row(n, obs, filtered, bias, scale, rng_state, table, False, OBS_BOUND)
 
 
 # The row loops without reference counting (numba's _nrt=False), as bogie_env.simulator._advance_run.
@@ -377,31 +386,31 @@ def _clip_actions(action, out):
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health):
+def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing):
     """Check and clip the actions, then one env step of every row on the calling thread;
     returns -1, or the flat index of a non-finite action (nothing stepped)."""
     bad = _clip_actions(action_in, action)
     if bad < 0:
         _step_rows(np.int64(0), action.shape[0], sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales,
-                   health)  # int64 as in the parallel loop: one compiled signature
+                   health, sensing)  # int64 as in the parallel loop: one compiled signature
     return bad
 
 
 @njit(cache=True, fastmath=FASTMATH, parallel=True)
-def _step_parallel(sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health):
+def _step_parallel(sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing):
     n_rows = action.shape[0]
     n_chunks = min(n_rows, N_CHUNKS)
     for c in prange(n_chunks):
         start, stop = chunk_bounds(n_rows, n_chunks, c)
-        _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health)
+        _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing)
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _step_checked_parallel(action_in, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health):
+def _step_checked_parallel(action_in, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing):
     """:func:`_step_serial` with the rows on the thread pool."""
     bad = _clip_actions(action_in, action)
     if bad < 0:
-        _step_parallel(sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health)
+        _step_parallel(sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing)
     return bad
 
 
@@ -556,6 +565,9 @@ class HuntingTask:
         self.sensor_bias = np.zeros((n, N_SENSED))
         self.sensor_scale = np.ones((n, N_SENSED))
         self.sensor_rng = np.zeros(n, dtype=np.uint64)
+        #: what the compiled step measures each row with, after its interval (sensors.sense_row)
+        self.sensing = (self.sensors_enabled, self.sensor_filter, self.sensor_bias, self.sensor_scale, self.sensor_rng,
+                        self.sensor_table)  # fmt: skip
 
     # ---- configuration ----------------------------------------------------------------------
     @property
@@ -864,13 +876,10 @@ class HuntingTask:
         a = self._action_array(actions)
         sim = self.sim
         args = (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, sim.stages, self.actions, self._task_rows, self.settings,
-                self.state_scales, self.health)  # fmt: skip
+                self.state_scales, self.health, self.sensing)  # fmt: skip
         bad = self.loops.run(_step_serial, _step_checked_parallel, a, *args)
         if bad >= 0:
             self._raise_non_finite(a, bad)
-        if self.sensors_enabled:
-            sense_rows(np.arange(self.num_envs), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
-                       self.sensor_rng, self.sensor_table, False, OBS_BOUND)  # fmt: skip
         if self.config["observation"]["noise"] > 0:
             self._add_noise(np.arange(self.num_envs))
 
