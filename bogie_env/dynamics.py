@@ -454,6 +454,44 @@ def guiding_forces_kernel(x, V, yt, p, out):
         _guiding_forces_row(x[n], V[n], yt[n], p, out[n])
 
 
+@njit(cache=True, error_model="numpy")
+def solve_dense(a, b):
+    """x with a x = b, for a small dense square a, by Gaussian elimination with partial pivoting
+    (row swaps by the largest magnitude); NaNs where a is singular.
+
+    Why not LAPACK: its kernels are chosen at run time by the processor (OpenBLAS picks Haswell,
+    Zen, SkylakeX, ... code), and they round differently, so the equilibrium that every episode
+    starts from moved in its last bits from one machine to the next, and with it every seeded
+    trajectory. These IEEE operations in a fixed order give the same bits on any x86-64 host
+    (numba compiles without fused multiply-adds unless fastmath asks for them)."""
+    n = a.shape[0]
+    m = a.copy()
+    x = b.copy()
+    for k in range(n):
+        pivot = k
+        for i in range(k + 1, n):
+            if abs(m[i, k]) > abs(m[pivot, k]):
+                pivot = i
+        if m[pivot, k] == 0.0:
+            x[:] = np.nan
+            return x
+        if pivot != k:
+            for j in range(n):
+                m[k, j], m[pivot, j] = m[pivot, j], m[k, j]
+            x[k], x[pivot] = x[pivot], x[k]
+        for i in range(k + 1, n):
+            factor = m[i, k] / m[k, k]
+            for j in range(k + 1, n):
+                m[i, j] -= factor * m[k, j]
+            x[i] -= factor * x[k]
+    for k in range(n - 1, -1, -1):
+        total = x[k]
+        for j in range(k + 1, n):
+            total -= m[k, j] * x[j]
+        x[k] = total / m[k, k]
+    return x
+
+
 @njit(cache=True)
 def rhs_single_kernel(x, V, Q, yt, p, out):
     """One bogie: x (20,), V float, Q (4,), yt (2,), p coefficients, out (20,). Unchecked."""
@@ -616,7 +654,7 @@ class BogieModel:
             if np.max(np.abs(f)) < tol:
                 return x
             jacobian_kernel(x, v, q, yt, self.coefficients, jac)
-            step = np.linalg.lstsq(jac, -f, rcond=None)[0]
+            step = solve_dense(jac, -f)
             x = x + step
             if not np.all(np.isfinite(x)):
                 break

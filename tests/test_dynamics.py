@@ -3,6 +3,9 @@ differences, the single-wheelset closed forms (Wickens), Klingel's kinematic wav
 the rigid-bogie wavelength, and the power neutrality of the gyroscopic coupling."""
 
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -18,6 +21,7 @@ from bogie_env.dynamics import (
     STATE_NAMES,
     BogieModel,
     rhs_single_kernel,
+    solve_dense,
     state_index,
 )
 from bogie_env.contact import saturation_factor
@@ -78,6 +82,29 @@ def test_equilibrium_residual_and_closed_form_lift(paper_model, paper_params):
     assert np.max(np.abs(others)) < 1e-15
     # the equilibrium does not depend on speed
     np.testing.assert_allclose(paper_model.equilibrium(50.0), x_eq, rtol=1e-12, atol=1e-15)
+
+
+def test_solve_dense_matches_lapack_and_flags_a_singular_matrix(rng):
+    for n in (1, 4, 20):
+        a = rng.normal(size=(n, n)) + n * np.eye(n)
+        b = rng.normal(size=n)
+        np.testing.assert_allclose(solve_dense(a, b), np.linalg.solve(a, b), rtol=1e-12, atol=1e-14)
+    a = np.array([[0.0, 2.0], [3.0, 1.0]])  # needs a row swap
+    np.testing.assert_allclose(solve_dense(a, np.array([4.0, 5.0])), np.linalg.solve(a, [4.0, 5.0]), rtol=1e-15)
+    assert np.all(np.isnan(solve_dense(np.array([[1.0, 2.0], [2.0, 4.0]]), np.array([1.0, 1.0]))))
+
+
+def test_equilibrium_bits_do_not_depend_on_the_blas_kernel():
+    """Every seeded episode starts from the equilibrium, so its bits must not follow the
+    processor-specific kernel that OpenBLAS picks (with LAPACK's least squares they did)."""
+    code = ("from bogie_env.dynamics import BogieModel; from bogie_env.params import BogieParams; "
+            "m = BogieModel(BogieParams.paper()); "
+            "print(''.join(m.equilibrium(v).tobytes().hex() for v in (50.0, 83.3, 150.0)))")  # fmt: skip
+    outs = set()
+    for kernel in ("Prescott", "Haswell"):
+        env = {**os.environ, "OPENBLAS_CORETYPE": kernel}
+        outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout)
+    assert len(outs) == 1
 
 
 @pytest.mark.parametrize("scale", [0.0, 0.3, 2.0])

@@ -4,6 +4,10 @@
 ``Bogie/Hunting-v1`` existed (observations, rewards and end states of seeded runs with seeded
 random actions, in the single env and the native vector env). Any change that moves a v0
 trajectory by one bit fails here; such a change belongs in a new env id.
+
+Rewritten once since, when the equilibrium's Newton step left LAPACK (``dynamics.solve_dense``):
+LAPACK's bits followed the processor's OpenBLAS kernel, so the file pinned one machine's last
+bits. Every array then moved by at most 5e-12 relative, the dynamics unchanged.
 """
 
 from pathlib import Path

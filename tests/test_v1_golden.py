@@ -6,6 +6,10 @@ seeded runs with seeded random actions, in the single env and the native vector 
 v1 defaults: sensors, delay, alert track, per-episode scenarios). A change that moves a v1
 trajectory by one bit fails here; such a change belongs in a new env id.
 
+Rewritten once since, when the equilibrium's Newton step left LAPACK (``dynamics.solve_dense``):
+LAPACK's bits followed the processor's OpenBLAS kernel, so the file pinned one machine's last
+bits. Every array then moved by at most 5e-12 relative, the dynamics unchanged.
+
     PYTHONPATH=<tree> python tests/test_v1_golden.py   # writes the golden file (only for a new version)
 """
 
