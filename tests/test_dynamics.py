@@ -14,17 +14,29 @@ from scipy.optimize import brentq
 from bogie_env.dynamics import (
     ANTISYMMETRIC_STATES,
     N_STATES,
+    N_TRACK,
     P_IWY,
     P_KPX,
     P_KPY,
     jacobian_kernel,
     STATE_NAMES,
     BogieModel,
+    frame_lateral_accel,
     rhs_single_kernel,
     solve_dense,
     state_index,
 )
 from bogie_env.contact import saturation_factor
+from bogie_env.track import (
+    ALIGNMENT_WHEELSET1,
+    ALIGNMENT_WHEELSET2,
+    CANT_FRAME,
+    CANT_WHEELSET1,
+    CANT_WHEELSET2,
+    CURVATURE_FRAME,
+    CURVATURE_WHEELSET1,
+    CURVATURE_WHEELSET2,
+)
 
 Y1, DY1, PSI1, DPSI1 = (state_index(n) for n in ("y1", "dy1", "psi1", "dpsi1"))
 
@@ -146,6 +158,22 @@ def test_track_enters_through_relative_displacement(paper_model, paper_params):
     expected[state_index("dyb")] = 2 * p.Kpy * d / p.mb
     expected[state_index("dpsib")] = 2 * p.Kpy * p.L1 * d / p.Ibz
     np.testing.assert_allclose(delta, expected, rtol=1e-9, atol=1e-9)
+
+
+def test_frame_lateral_acceleration_alone_equals_the_full_right_hand_side(paper_model, rng):
+    """The observation's frame acceleration (``frame_lateral_accel``, no wheel-rail contact) is
+    bit for bit the frame's lateral equation of the full right-hand side, in curves with cant too."""
+    out = np.empty(N_STATES)
+    for scale in (0.3, 1.0, 3.0):
+        for x in random_states(rng, 8, scale):
+            q = rng.normal(scale=2e4, size=4)
+            yt = np.zeros(N_TRACK)
+            yt[[ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2]] = rng.normal(scale=2e-3, size=2)
+            if scale > 1.0:  # curvature (R about 10 km) and cant (about 0.1 rad) under the frame and each wheelset
+                yt[[CURVATURE_WHEELSET1, CURVATURE_WHEELSET2, CURVATURE_FRAME]] = rng.normal(scale=1e-4, size=3)
+                yt[[CANT_WHEELSET1, CANT_WHEELSET2, CANT_FRAME]] = rng.normal(scale=0.1, size=3)
+            rhs_single_kernel(x, 83.0, q, yt, paper_model.coefficients, out)
+            assert frame_lateral_accel(x, 83.0, q, yt, paper_model.coefficients) == out[state_index("dyb")]
 
 
 def test_gyroscopic_coupling_is_power_neutral(paper_model, rng):
