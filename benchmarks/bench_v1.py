@@ -12,7 +12,13 @@ steps v0 and v1 at N = 1 and 4096 and reports the best of ``--chunks`` chunks of
 ``time.process_time``. The trees alternate within each round; the ratios between trees and
 between v0 and v1 in one run are the figures.
 
+``--parts`` reports, in one process on the calling thread, the CPU time per row of a v2 env step
+at N = 4096 beside two pieces of it: the full scalar right-hand side (with both wheel-rail
+contacts) and the frame's lateral equation alone (``dynamics.frame_lateral_accel``), which is
+what the observation's frame acceleration costs since it stopped evaluating the former.
+
     python benchmarks/bench_v1.py
+    python benchmarks/bench_v1.py --parts                                    # pieces of a v2 step, CPU time
     python benchmarks/bench_v1.py --cpu                                      # this tree, CPU time
     python benchmarks/bench_v1.py --cpu --trees /tmp/before . --rounds 3     # trees interleaved
 """
@@ -61,6 +67,54 @@ def measure(chunks: int) -> dict:
     return out
 
 
+def step_parts(chunks: int, n: int = 4096, reps: int = 20) -> dict:
+    """CPU microseconds per row (best of ``chunks``) of a v2 env step, of the full scalar
+    right-hand side and of the frame's lateral equation alone, at the rows' states after warm-up."""
+    import numpy as np
+    from numba import njit
+
+    from bench_route import make_task
+    from bogie_env.dynamics import N_STATES, frame_lateral_accel, rhs_row_call
+
+    @njit
+    def full(x, v, q, yt, p, out, reps):
+        total = 0.0
+        for _ in range(reps):
+            for i in range(x.shape[0]):
+                rhs_row_call(x[i], v[i], q, yt[i], p[i], out)
+                total += out[17]
+        return total
+
+    @njit
+    def frame_equation(x, v, q, yt, p, reps):
+        total = 0.0
+        for _ in range(reps):
+            for i in range(x.shape[0]):
+                total += frame_lateral_accel(x[i], v[i], q, yt[i], p[i])
+        return total
+
+    task = make_task("v2", n)
+    sim = task.sim
+    x, p, yt = sim.x, sim.coefficients, sim.track_sample
+    v, q, out = np.full(n, 80.0), np.zeros(4), np.empty(N_STATES)
+    actions = np.zeros((n, task.action_dim))
+    full(x, v, q, yt, p, out, 1)
+    frame_equation(x, v, q, yt, p, 1)
+    figures: dict[str, list[float]] = {"v2_step_us": [], "full_rhs_us": [], "frame_equation_us": []}
+    for _ in range(chunks):
+        t0 = time.process_time()
+        for _ in range(5):
+            task.step(actions)
+        figures["v2_step_us"].append((time.process_time() - t0) / (5 * n) * 1e6)
+        t0 = time.process_time()
+        full(x, v, q, yt, p, out, reps)
+        figures["full_rhs_us"].append((time.process_time() - t0) / (reps * n) * 1e6)
+        t0 = time.process_time()
+        frame_equation(x, v, q, yt, p, reps)
+        figures["frame_equation_us"].append((time.process_time() - t0) / (reps * n) * 1e6)
+    return {"load": os.getloadavg()[0], **{k: min(v) for k, v in figures.items()}}
+
+
 def cpu_main(args: argparse.Namespace) -> None:
     """--cpu: env steps per CPU second, this tree or ``--trees`` interleaved in fresh processes."""
     if args.child or not args.trees:
@@ -101,7 +155,11 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3, help="--cpu: rounds")
     parser.add_argument("--chunks", type=int, default=7, help="--cpu: chunks per case, the best kept")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--parts", action="store_true", help="CPU time of a v2 step and two pieces of it (see the docstring)")
     args = parser.parse_args()
+    if args.parts:
+        print(json.dumps(step_parts(args.chunks)))
+        return
     if args.cpu:
         cpu_main(args)
         return
