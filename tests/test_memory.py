@@ -164,3 +164,62 @@ def test_memory_training_resumes_from_its_checkpoint(tmp_path, memory):
     policy = load_policy(str(out), make_config(SHORT, variant="v1"), trusted=True)
     policy.reset(2)
     assert policy.act(np.zeros((2, policy.frame_shape[0]), np.float32)).shape == (2, policy.model.action_space.shape[0])
+
+
+def _steady_loop(policy, speed_kmh=300.0):
+    """The policy linearised in the v1 loop (margins.linear_loop) and its operating observation."""
+    from bogie_agents.design import margins as M
+
+    env_config = make_config(variant="v1")
+    loop = M.linear_loop(policy, env_config, speed_kmh)
+    config = M.policy_config(env_config, policy)
+    y0 = M.observe(loop.plant.x_eq, loop.plant.force_eq, speed_kmh / 3.6, config, loop.plant.model)[0]
+    return M, loop, y0
+
+
+def test_frame_stack_policy_linear_model_follows_its_act():
+    """A frame-stacked SB3 policy is linearised with its history as controller state (a shift
+    register of the earlier observations): its model follows ``act`` on a random sequence, and
+    the same Jacobian with the frames in the wrong order does not."""
+    import gymnasium as gym
+    import torch
+    from stable_baselines3 import PPO
+
+    from bogie_agents.design.linear_models import stack_model
+
+    frames, n_obs = 3, gym.make("Bogie/Hunting-v1").observation_space.shape[0]
+
+    class Spaces(gym.Env):
+        observation_space = gym.spaces.Box(-10.0, 10.0, (frames * n_obs,), np.float32)
+        action_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
+
+    model = PPO("MlpPolicy", Spaces(), policy_kwargs={"net_arch": [16], "activation_fn": torch.nn.Tanh}, seed=3, device="cpu")
+    with torch.no_grad():  # SB3 initialises the action head at gain 0.01: make the gains visible
+        model.policy.action_net.weight.mul_(30.0)
+    rng = np.random.default_rng(0)
+    policy = SB3Policy(model, rng.normal(scale=0.1, size=n_obs), rng.uniform(0.5, 2.0, n_obs), 10.0, 1e-8, "stack",
+                       make_config(variant="v1"), frame_stack=frames)  # fmt: skip
+    M, loop, y0 = _steady_loop(policy)
+    assert loop.ctrl.n_states == (frames - 1) * n_obs
+    assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2  # float32 act
+    jac = M.sb3_jacobian_autograd(policy, y0)
+    reversed_frames = np.hstack([jac[:, j * n_obs:(j + 1) * n_obs] for j in reversed(range(frames))])
+    wrong = stack_model(reversed_frames, n_obs, frames, "frames reversed")
+    assert M.check_controller_model(policy, wrong, y0, loop.u_eq, amplitude=1e-3) > 0.1
+    margins = M.loop_margins(loop)  # the margins are computed, not refused
+    assert margins["loops"] and margins["controller_model"].endswith("3 stacked frames")
+
+
+def test_frame_stack_residual_linear_model_follows_its_act(tmp_path):
+    """The frame-stacked washed-out residual: baseline, feature filters and the stacked network
+    in one model, which follows the composite's ``act``."""
+    import torch
+
+    config = _config(frame_stack=2, residual={"baseline": "robust_damping", "scale": 0.2, "features": "washed_out"},
+                     vecnormalize={"norm_obs": False})  # fmt: skip
+    policy = load_policy(str(_train(tmp_path, config)), make_config(SHORT, variant="v1"), trusted=True)
+    with torch.no_grad():  # 256 training steps leave the network's gains small: make them count
+        policy.network.model.policy.action_net.weight.mul_(30.0)
+    M, loop, y0 = _steady_loop(policy)
+    assert "2 stacked frames" in loop.ctrl.method
+    assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2

@@ -81,6 +81,45 @@ def static_model(d: np.ndarray, method: str) -> ControllerModel:
     return ControllerModel(np.zeros((0, 0)), np.zeros((0, p)), np.zeros((m, 0)), d, method)
 
 
+def series(first: ControllerModel, second: ControllerModel, method: str) -> ControllerModel:
+    """``second`` fed by ``first``'s output: states ``[first; second]``."""
+    n1, n2 = first.n_states, second.n_states
+    a = np.block([[first.a, np.zeros((n1, n2))], [second.b @ first.c, second.a]])
+    b = np.vstack([first.b, second.b @ first.d])
+    c = np.hstack([second.d @ first.c, second.c])
+    return ControllerModel(a, b, c, second.d @ first.d, method)
+
+
+def parallel(first: ControllerModel, second: ControllerModel, method: str) -> ControllerModel:
+    """The sum of two models' outputs for the same input: states ``[first; second]``."""
+    n1, n2 = first.n_states, second.n_states
+    a = np.block([[first.a, np.zeros((n1, n2))], [np.zeros((n2, n1)), second.a]])
+    return ControllerModel(a, np.vstack([first.b, second.b]), np.hstack([first.c, second.c]), first.d + second.d, method)
+
+
+def stack_model(jacobian: np.ndarray, n_in: int, frames: int, method: str) -> ControllerModel:
+    """The linear model of a network fed the last ``frames`` inputs side by side, oldest first (as
+    SB3's ``VecFrameStack`` and :class:`bogie_agents.controllers.memory.ObservationHistory` stack
+    them), from its Jacobian (n_act, frames * n_in) on the stack.
+
+    The state holds the ``frames - 1`` previous inputs, newest first: ``c+ = [x, c_1, ...,
+    c_{frames-2}]`` (a shift register), and ``u = J_newest x + sum_j J_(newest - j) c_j``.
+    One frame: the static model ``u = J x``."""
+    jacobian = np.asarray(jacobian, dtype=float)
+    if jacobian.shape[1] != frames * n_in:
+        raise ValueError(f"stack_model: Jacobian has {jacobian.shape[1]} columns; expected frames x n_in = {frames * n_in}")
+    blocks = [jacobian[:, j * n_in:(j + 1) * n_in] for j in range(frames)]  # oldest first
+    if frames == 1:
+        return static_model(blocks[0], method)
+    n_c = (frames - 1) * n_in
+    a = np.zeros((n_c, n_c))
+    a[n_in:, :n_c - n_in] = np.eye(n_c - n_in)
+    b = np.zeros((n_c, n_in))
+    b[:n_in] = np.eye(n_in)
+    c = np.hstack([blocks[frames - 2 - j] for j in range(frames - 1)])
+    return ControllerModel(a, b, c, blocks[-1], method)
+
+
 def residual_controller_model(baseline: ControllerModel, nn_jacobian: np.ndarray, scale: float | np.ndarray,
                               action_at_rest: np.ndarray | None = None) -> ControllerModel:  # fmt: skip
     """The linear model of ``action = clip(baseline(y) + scale * NN(y), -1, 1)`` at ``y0``.
@@ -109,22 +148,30 @@ def _normalisation(policy):
     return mean, policy.obs_var, policy.epsilon, policy.clip_obs
 
 
+def frames_of(policy) -> int:
+    """How many observations side by side the SB3 policy's network takes (its ``frame_stack``)."""
+    return int(getattr(policy, "frame_stack", 1)) if getattr(policy, "history", None) is not None else 1
+
+
 def sb3_action_function(policy):
-    """The SB3 policy's deterministic action as a float64 torch function of the observation:
-    VecNormalize scaling and clipping, the network (a float64 copy for PPO/A2C), the action-box
-    clip. ``policy.model`` is the SB3 algorithm; ``obs_mean``/``obs_var``/``epsilon``/``clip_obs``
-    (optional attributes) the observation statistics."""
+    """The SB3 policy's deterministic action as a float64 torch function of its network's input:
+    :func:`frames_of` raw observations side by side, oldest first (one, without frame stacking),
+    each through the VecNormalize scaling and clipping, then the network (a float64 copy for
+    PPO/A2C) and the action-box clip. ``policy.model`` is the SB3 algorithm;
+    ``obs_mean``/``obs_var``/``epsilon``/``clip_obs`` (optional attributes) the statistics of one
+    observation. A recurrent (LSTM) policy is refused: its model needs the hidden state's Jacobians."""
     import copy
 
     import torch
 
     from stable_baselines3.common.policies import ActorCriticPolicy
 
-    if getattr(policy, "history", None) is not None or getattr(policy, "recurrent", None) is not None:
+    if getattr(policy, "recurrent", None) is not None:
         from bogie_env.params import ConfigError
 
-        raise ConfigError(f"policy {getattr(policy, 'name', '?')!r} has memory (frame_stack or an LSTM): its linear "
-                          "model is not a static gain, and margins of such policies are not implemented")  # fmt: skip
+        raise ConfigError(f"policy {getattr(policy, 'name', '?')!r} is recurrent (an LSTM): the linear model of its "
+                          "hidden state is not implemented, so its margins are not computed")  # fmt: skip
+    frames = frames_of(policy)
     net = policy.model.policy
     # PPO/A2C: the actor's layers in float64 (SB3's own _predict casts observations to float32)
     double = isinstance(net, ActorCriticPolicy) and not net.squash_output
@@ -141,23 +188,29 @@ def sb3_action_function(policy):
         return net._predict(z, deterministic=True)
 
     def action(y: torch.Tensor) -> torch.Tensor:
-        y = y.to(dtype)
-        z = torch.clamp((y - mean) / torch.sqrt(var + eps), -clip, clip)
+        y = y.to(dtype).reshape(frames, -1)
+        z = torch.clamp((y - mean) / torch.sqrt(var + eps), -clip, clip).reshape(-1)
         return torch.clamp(deterministic(z[None])[0], -1.0, 1.0).double()
 
     return action
 
 
+def _steady_input(policy, y: np.ndarray) -> np.ndarray:
+    """The network's input while the observation stays at ``y``: ``y`` in every frame."""
+    return np.tile(np.asarray(y, dtype=np.float64), frames_of(policy))
+
+
 def sb3_action(policy, y: np.ndarray) -> np.ndarray:
-    """The SB3 policy's action at one observation, in float64 (``act`` rounds to float32)."""
+    """The SB3 policy's action at a steady observation ``y``, in float64 (``act`` rounds to float32)."""
     import torch
 
     with torch.no_grad():
-        return sb3_action_function(policy)(torch.as_tensor(np.asarray(y, dtype=np.float64))).numpy()
+        return sb3_action_function(policy)(torch.as_tensor(_steady_input(policy, y))).numpy()
 
 
 def sb3_jacobian_autograd(policy, y0: np.ndarray) -> np.ndarray:
-    """(n_act, n_obs) d(action)/d(observation) of an SB3 policy at ``y0``.
+    """(n_act, frames x n_obs) d(action)/d(network input) of an SB3 policy at the steady
+    observation ``y0`` (``frames`` = :func:`frames_of`; one: d(action)/d(observation)).
 
     Through the VecNormalize scaling and clipping (attributes ``obs_mean``, ``obs_var``,
     ``epsilon``, ``clip_obs`` of ``policy``, if present) and the action-box clip, by torch
@@ -168,14 +221,16 @@ def sb3_jacobian_autograd(policy, y0: np.ndarray) -> np.ndarray:
     """
     import torch
 
-    jac = torch.autograd.functional.jacobian(sb3_action_function(policy), torch.as_tensor(np.asarray(y0, dtype=np.float64)))
+    jac = torch.autograd.functional.jacobian(sb3_action_function(policy), torch.as_tensor(_steady_input(policy, y0)))
     return jac.detach().numpy()
 
 
 def sb3_controller_model(policy, y0: np.ndarray) -> ControllerModel:
-    """The linear model of a (stateless) SB3 policy at the raw observation ``y0``: static,
-    ``d`` = :func:`sb3_jacobian_autograd` (policy, y0)."""
-    return static_model(sb3_jacobian_autograd(policy, y0), "SB3 policy, torch autograd through VecNormalize")
+    """The linear model of an SB3 policy at the raw observation ``y0``: static, ``d`` =
+    :func:`sb3_jacobian_autograd` (policy, y0); with frame stacking, :func:`stack_model` of it."""
+    frames = frames_of(policy)
+    method = "SB3 policy, torch autograd through VecNormalize" + (f", {frames} stacked frames" if frames > 1 else "")
+    return stack_model(sb3_jacobian_autograd(policy, y0), np.asarray(y0).size, frames, method)
 
 
 def finite_difference_jacobian(policy, y0: np.ndarray, step: float = 1e-3) -> np.ndarray:
