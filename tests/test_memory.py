@@ -223,3 +223,47 @@ def test_frame_stack_residual_linear_model_follows_its_act(tmp_path):
     M, loop, y0 = _steady_loop(policy)
     assert "2 stacked frames" in loop.ctrl.method
     assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2
+
+
+def test_recurrent_policy_linear_model_follows_its_act():
+    """A RecurrentPPO policy is linearised about its LSTM's steady state, the hidden and cell
+    states as controller states: its model follows ``act``, and the same model without the
+    state's own dynamics does not."""
+    import dataclasses
+
+    import gymnasium as gym
+    import torch
+    from sb3_contrib import RecurrentPPO
+
+    n_obs = gym.make("Bogie/Hunting-v1").observation_space.shape[0]
+
+    class Spaces(gym.Env):
+        observation_space = gym.spaces.Box(-10.0, 10.0, (n_obs,), np.float32)
+        action_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
+
+    model = RecurrentPPO("MlpLstmPolicy", Spaces(), policy_kwargs={"net_arch": [16], "lstm_hidden_size": 8}, seed=3,
+                         device="cpu")  # fmt: skip
+    with torch.no_grad():
+        model.policy.action_net.weight.mul_(30.0)
+    rng = np.random.default_rng(1)
+    policy = SB3Policy(model, rng.normal(scale=0.1, size=n_obs), rng.uniform(0.5, 2.0, n_obs), 10.0, 1e-8, "lstm",
+                       make_config(variant="v1"))  # fmt: skip
+    M, loop, y0 = _steady_loop(policy)
+    assert loop.ctrl.n_states == 2 * 8
+    assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2  # float32 act
+    frozen = dataclasses.replace(loop.ctrl, a=np.zeros_like(loop.ctrl.a))
+    assert M.check_controller_model(policy, frozen, y0, loop.u_eq, amplitude=1e-3) > 0.1
+    assert M.loop_margins(loop)["loops"]
+
+
+def test_recurrent_residual_linear_model_follows_its_act(tmp_path):
+    import torch
+
+    config = _config(algo="recurrent_ppo", residual={"baseline": "robust_damping", "scale": 0.2, "features": "washed_out"},
+                     vecnormalize={"norm_obs": False}, policy_kwargs={"net_arch": [8], "lstm_hidden_size": 4})  # fmt: skip
+    policy = load_policy(str(_train(tmp_path, config)), make_config(SHORT, variant="v1"), trusted=True)
+    with torch.no_grad():  # 256 training steps leave the network's gains small: make them count
+        policy.network.model.policy.action_net.weight.mul_(30.0)
+    M, loop, y0 = _steady_loop(policy)
+    assert "LSTM state" in loop.ctrl.method
+    assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2

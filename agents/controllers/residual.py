@@ -206,11 +206,10 @@ class ResidualPolicy:
     def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray):
         """The composite's linear model at the operating observation ``y0``: the baseline's own
         model beside the network's, ``scale x J`` (``J`` its Jacobian by torch autograd, through
-        its input normalisation; with frame stacking, a shift register of the earlier inputs) fed
-        by the feature filters (if any); a channel whose composite command is clipped at ``y0`` has
-        zero small-signal gain."""
-        from ..design.margins import (ControllerModel, controller_model, frames_of, parallel, sb3_action, sb3_jacobian_autograd,
-                                      series, stack_model)  # fmt: skip
+        its input normalisation; with frame stacking, a shift register of the earlier inputs; with
+        an LSTM, its state) fed by the feature filters (if any); a channel whose composite command
+        is clipped at ``y0`` has zero small-signal gain."""
+        from ..design.margins import ControllerModel, controller_model, frames_of, parallel, sb3_action, sb3_controller_model, series
 
         y0 = np.asarray(y0, dtype=np.float64)
         base = controller_model(self.baseline, n_obs, speed_kmh, y0)
@@ -219,12 +218,12 @@ class ResidualPolicy:
             u_base = np.asarray(self.baseline.act(y0.astype(np.float32)[None]), dtype=np.float64)[0]
             x0 = y0 if self.features is None else self.features(y0.astype(np.float32)[None])[0].astype(np.float64)
         frames = frames_of(self.network)
-        jac = self.scale * sb3_jacobian_autograd(self.network, x0)
         live = (np.abs(u_base + self.scale * sb3_action(self.network, x0)) < 1.0).astype(np.float64)[:, None]
         inputs = "observation" if self.features is None else "washed-out features"
-        method = (f"residual: {base.method} + {self.scale:g} x NN Jacobian (torch autograd; network input: {inputs}"
-                  + (f", {frames} stacked frames)" if frames > 1 else ")"))  # fmt: skip
-        network = stack_model(jac, x0.size, frames, method)
+        memory = f", {frames} stacked frames" if frames > 1 else (", LSTM state" if getattr(self.network, "recurrent", None) is not None else "")
+        method = f"residual: {base.method} + {self.scale:g} x NN Jacobian (torch autograd; network input: {inputs}{memory})"
+        network = sb3_controller_model(self.network, x0)
+        network = ControllerModel(network.a, network.b, self.scale * network.c, self.scale * network.d, method)
         if self.features is not None:
             network = series(ControllerModel(*self.features.linear_map(speed_kmh), method), network, method)
         total = parallel(base, network, method)

@@ -159,7 +159,8 @@ def sb3_action_function(policy):
     each through the VecNormalize scaling and clipping, then the network (a float64 copy for
     PPO/A2C) and the action-box clip. ``policy.model`` is the SB3 algorithm;
     ``obs_mean``/``obs_var``/``epsilon``/``clip_obs`` (optional attributes) the statistics of one
-    observation. A recurrent (LSTM) policy is refused: its model needs the hidden state's Jacobians."""
+    observation. A recurrent (LSTM) policy is refused: its action depends on its state too
+    (:func:`lstm_step_function`)."""
     import copy
 
     import torch
@@ -169,8 +170,8 @@ def sb3_action_function(policy):
     if getattr(policy, "recurrent", None) is not None:
         from bogie_env.params import ConfigError
 
-        raise ConfigError(f"policy {getattr(policy, 'name', '?')!r} is recurrent (an LSTM): the linear model of its "
-                          "hidden state is not implemented, so its margins are not computed")  # fmt: skip
+        raise ConfigError(f"policy {getattr(policy, 'name', '?')!r} is recurrent (an LSTM): its action is not a "
+                          "function of the observation alone; use lstm_step_function")  # fmt: skip
     frames = frames_of(policy)
     net = policy.model.policy
     # PPO/A2C: the actor's layers in float64 (SB3's own _predict casts observations to float32)
@@ -201,9 +202,14 @@ def _steady_input(policy, y: np.ndarray) -> np.ndarray:
 
 
 def sb3_action(policy, y: np.ndarray) -> np.ndarray:
-    """The SB3 policy's action at a steady observation ``y``, in float64 (``act`` rounds to float32)."""
+    """The SB3 policy's action at a steady observation ``y``, in float64 (``act`` rounds to float32);
+    a recurrent policy's at its LSTM's steady state (:func:`lstm_steady_state`)."""
     import torch
 
+    if getattr(policy, "recurrent", None) is not None:
+        step = lstm_step_function(policy)
+        with torch.no_grad():
+            return step(lstm_steady_state(policy, y), torch.as_tensor(np.asarray(y, dtype=np.float64)))[1].numpy()
     with torch.no_grad():
         return sb3_action_function(policy)(torch.as_tensor(_steady_input(policy, y))).numpy()
 
@@ -225,9 +231,73 @@ def sb3_jacobian_autograd(policy, y0: np.ndarray) -> np.ndarray:
     return jac.detach().numpy()
 
 
+def lstm_step_function(policy):
+    """One step of a recurrent (sb3-contrib RecurrentPPO) policy as a float64 torch function
+    ``(state, y) -> (next state, action)``: ``state`` the actor LSTM's hidden and cell states
+    flattened, ``y`` the raw observation (VecNormalize scaling and clipping, the LSTM, the actor's
+    layers, the deterministic action and the action-box clip, as ``predict`` computes them)."""
+    import copy
+
+    import torch
+
+    net = copy.deepcopy(policy.model.policy).double()
+    lstm = net.lstm_actor
+    layers, hidden = lstm.num_layers, lstm.hidden_size
+    size = layers * hidden
+    mean_np, var_np, eps, clip = _normalisation(policy)
+    mean = torch.as_tensor(0.0 if mean_np is None else mean_np, dtype=torch.float64)
+    var = torch.as_tensor(1.0 if var_np is None else var_np, dtype=torch.float64)
+
+    def step(state: torch.Tensor, y: torch.Tensor):
+        z = torch.clamp((y.double() - mean) / torch.sqrt(var + eps), -clip, clip)
+        features = net.pi_features_extractor(z[None])
+        h, c = state[:size].reshape(layers, 1, hidden), state[size:].reshape(layers, 1, hidden)
+        out, (h_next, c_next) = lstm(features[None], (h, c))
+        action = net.action_net(net.mlp_extractor.forward_actor(out[0]))[0]
+        return torch.cat([h_next.reshape(-1), c_next.reshape(-1)]), torch.clamp(action, -1.0, 1.0)
+
+    step.state_size = 2 * size
+    return step
+
+
+def lstm_steady_state(policy, y0: np.ndarray, max_steps: int = 5000, tol: float = 1e-12) -> "torch.Tensor":
+    """The actor LSTM's state after the observation has stayed at ``y0`` long enough: iterated
+    from the episode start's zero state until it changes by at most ``tol``."""
+    import torch
+
+    step = lstm_step_function(policy)
+    y = torch.as_tensor(np.asarray(y0, dtype=np.float64))
+    state = torch.zeros(step.state_size, dtype=torch.float64)
+    with torch.no_grad():
+        for _ in range(max_steps):
+            following = step(state, y)[0]
+            if float(torch.max(torch.abs(following - state))) <= tol:
+                return following
+            state = following
+    raise ValueError(f"policy {getattr(policy, 'name', '?')!r}: its LSTM state did not settle at the operating "
+                     f"observation within {max_steps} steps (no steady state to linearise about)")  # fmt: skip
+
+
+def lstm_controller_model(policy, y0: np.ndarray) -> ControllerModel:
+    """The linear model of a recurrent policy about its steady state at ``y0``: the LSTM's hidden
+    and cell states are the controller's states, ``a``, ``b`` the Jacobians of the next state and
+    ``c``, ``d`` those of the action, with respect to the state and the observation (torch autograd)."""
+    import torch
+
+    step = lstm_step_function(policy)
+    state = lstm_steady_state(policy, y0)
+    y = torch.as_tensor(np.asarray(y0, dtype=np.float64))
+    (a, b), (c, d) = torch.autograd.functional.jacobian(step, (state, y))
+    return ControllerModel(*(m.detach().numpy() for m in (a, b, c, d)),
+                           "SB3 recurrent policy, torch autograd about its LSTM's steady state")  # fmt: skip
+
+
 def sb3_controller_model(policy, y0: np.ndarray) -> ControllerModel:
     """The linear model of an SB3 policy at the raw observation ``y0``: static, ``d`` =
-    :func:`sb3_jacobian_autograd` (policy, y0); with frame stacking, :func:`stack_model` of it."""
+    :func:`sb3_jacobian_autograd` (policy, y0); with frame stacking, :func:`stack_model` of it;
+    a recurrent policy, :func:`lstm_controller_model`."""
+    if getattr(policy, "recurrent", None) is not None:
+        return lstm_controller_model(policy, y0)
     frames = frames_of(policy)
     method = "SB3 policy, torch autograd through VecNormalize" + (f", {frames} stacked frames" if frames > 1 else "")
     return stack_model(sb3_jacobian_autograd(policy, y0), np.asarray(y0).size, frames, method)

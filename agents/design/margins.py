@@ -67,9 +67,9 @@ from bogie_env.params import ConfigError
 from bogie_env.sampled_plant import PlantModel, actuated, sampled_plant, sensor_filters
 from bogie_env.stability import KMH
 
-from .linear_models import (ControllerModel, finite_difference_jacobian, frames_of, parallel, residual_controller_model,  # noqa: F401
-                            sb3_action, sb3_action_function, sb3_controller_model, sb3_jacobian_autograd, series,
-                            stack_model, static_model)  # fmt: skip
+from .linear_models import (ControllerModel, finite_difference_jacobian, frames_of, lstm_controller_model, parallel,  # noqa: F401
+                            residual_controller_model, sb3_action, sb3_action_function, sb3_controller_model,
+                            sb3_jacobian_autograd, series, stack_model, static_model)  # fmt: skip
 
 _static = static_model
 
