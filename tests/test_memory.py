@@ -177,29 +177,57 @@ def _steady_loop(policy, speed_kmh=300.0):
     return M, loop, y0
 
 
-def test_frame_stack_policy_linear_model_follows_its_act():
-    """A frame-stacked SB3 policy is linearised with its history as controller state (a shift
-    register of the earlier observations): its model follows ``act`` on a random sequence, and
-    the same Jacobian with the frames in the wrong order does not."""
+def _louder(network_policy) -> None:
+    """Scale up an SB3 actor's action head (SB3 initialises it at gain 0.01, and a few hundred
+    training steps leave it small), so that the network's part of the response is visible."""
+    import torch
+
+    with torch.no_grad():
+        network_policy.model.policy.action_net.weight.mul_(30.0)
+
+
+def _untrained_policy(algo: str, frames: int, policy_kwargs: dict) -> SB3Policy:
+    """An untrained SB3 model on v1's observation (``frames`` stacked) as an SB3Policy with
+    random normalisation statistics."""
     import gymnasium as gym
     import torch
+    from sb3_contrib import RecurrentPPO
     from stable_baselines3 import PPO
 
-    from bogie_agents.design.linear_models import stack_model
-
-    frames, n_obs = 3, gym.make("Bogie/Hunting-v1").observation_space.shape[0]
+    n_obs = gym.make("Bogie/Hunting-v1").observation_space.shape[0]
 
     class Spaces(gym.Env):
         observation_space = gym.spaces.Box(-10.0, 10.0, (frames * n_obs,), np.float32)
         action_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
 
-    model = PPO("MlpPolicy", Spaces(), policy_kwargs={"net_arch": [16], "activation_fn": torch.nn.Tanh}, seed=3, device="cpu")
-    with torch.no_grad():  # SB3 initialises the action head at gain 0.01: make the gains visible
-        model.policy.action_net.weight.mul_(30.0)
-    rng = np.random.default_rng(0)
-    policy = SB3Policy(model, rng.normal(scale=0.1, size=n_obs), rng.uniform(0.5, 2.0, n_obs), 10.0, 1e-8, "stack",
+    cls, name = (RecurrentPPO, "MlpLstmPolicy") if algo == "recurrent_ppo" else (PPO, "MlpPolicy")
+    model = cls(name, Spaces(), policy_kwargs={"activation_fn": torch.nn.Tanh, **policy_kwargs}, seed=3, device="cpu")
+    rng = np.random.default_rng(1)
+    policy = SB3Policy(model, rng.normal(scale=0.1, size=n_obs), rng.uniform(0.5, 2.0, n_obs), 10.0, 1e-8, algo,
                        make_config(variant="v1"), frame_stack=frames)  # fmt: skip
+    _louder(policy)
+    return policy
+
+
+def _trained_residual(tmp_path, **changes):
+    """A washed-out residual on robust_damping, trained for 256 steps, with a louder network."""
+    config = _config(residual={"baseline": "robust_damping", "scale": 0.2, "features": "washed_out"},
+                     vecnormalize={"norm_obs": False}, **changes)  # fmt: skip
+    policy = load_policy(str(_train(tmp_path, config)), make_config(SHORT, variant="v1"), trusted=True)
+    _louder(policy.network)
+    return policy
+
+
+def test_frame_stack_policy_linear_model_follows_its_act():
+    """A frame-stacked SB3 policy is linearised with its history as controller state (a shift
+    register of the earlier observations): its model follows ``act`` on a random sequence, and
+    the same Jacobian with the frames in the wrong order does not."""
+    from bogie_agents.design.linear_models import stack_model
+
+    frames = 3
+    policy = _untrained_policy("ppo", frames, {"net_arch": [16]})
     M, loop, y0 = _steady_loop(policy)
+    n_obs = y0.size
     assert loop.ctrl.n_states == (frames - 1) * n_obs
     assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2  # float32 act
     jac = M.sb3_jacobian_autograd(policy, y0)
@@ -210,44 +238,13 @@ def test_frame_stack_policy_linear_model_follows_its_act():
     assert margins["loops"] and margins["controller_model"].endswith("3 stacked frames")
 
 
-def test_frame_stack_residual_linear_model_follows_its_act(tmp_path):
-    """The frame-stacked washed-out residual: baseline, feature filters and the stacked network
-    in one model, which follows the composite's ``act``."""
-    import torch
-
-    config = _config(frame_stack=2, residual={"baseline": "robust_damping", "scale": 0.2, "features": "washed_out"},
-                     vecnormalize={"norm_obs": False})  # fmt: skip
-    policy = load_policy(str(_train(tmp_path, config)), make_config(SHORT, variant="v1"), trusted=True)
-    with torch.no_grad():  # 256 training steps leave the network's gains small: make them count
-        policy.network.model.policy.action_net.weight.mul_(30.0)
-    M, loop, y0 = _steady_loop(policy)
-    assert "2 stacked frames" in loop.ctrl.method
-    assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2
-
-
 def test_recurrent_policy_linear_model_follows_its_act():
     """A RecurrentPPO policy is linearised about its LSTM's steady state, the hidden and cell
     states as controller states: its model follows ``act``, and the same model without the
     state's own dynamics does not."""
     import dataclasses
 
-    import gymnasium as gym
-    import torch
-    from sb3_contrib import RecurrentPPO
-
-    n_obs = gym.make("Bogie/Hunting-v1").observation_space.shape[0]
-
-    class Spaces(gym.Env):
-        observation_space = gym.spaces.Box(-10.0, 10.0, (n_obs,), np.float32)
-        action_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
-
-    model = RecurrentPPO("MlpLstmPolicy", Spaces(), policy_kwargs={"net_arch": [16], "lstm_hidden_size": 8}, seed=3,
-                         device="cpu")  # fmt: skip
-    with torch.no_grad():
-        model.policy.action_net.weight.mul_(30.0)
-    rng = np.random.default_rng(1)
-    policy = SB3Policy(model, rng.normal(scale=0.1, size=n_obs), rng.uniform(0.5, 2.0, n_obs), 10.0, 1e-8, "lstm",
-                       make_config(variant="v1"))  # fmt: skip
+    policy = _untrained_policy("recurrent_ppo", 1, {"net_arch": [16], "lstm_hidden_size": 8})
     M, loop, y0 = _steady_loop(policy)
     assert loop.ctrl.n_states == 2 * 8
     assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2  # float32 act
@@ -256,14 +253,13 @@ def test_recurrent_policy_linear_model_follows_its_act():
     assert M.loop_margins(loop)["loops"]
 
 
-def test_recurrent_residual_linear_model_follows_its_act(tmp_path):
-    import torch
-
-    config = _config(algo="recurrent_ppo", residual={"baseline": "robust_damping", "scale": 0.2, "features": "washed_out"},
-                     vecnormalize={"norm_obs": False}, policy_kwargs={"net_arch": [8], "lstm_hidden_size": 4})  # fmt: skip
-    policy = load_policy(str(_train(tmp_path, config)), make_config(SHORT, variant="v1"), trusted=True)
-    with torch.no_grad():  # 256 training steps leave the network's gains small: make them count
-        policy.network.model.policy.action_net.weight.mul_(30.0)
+@pytest.mark.parametrize("memory, method", [({"frame_stack": 2}, "2 stacked frames"),
+                                            ({"algo": "recurrent_ppo", "policy_kwargs": {"net_arch": [8], "lstm_hidden_size": 4}},
+                                             "LSTM state")])  # fmt: skip
+def test_residual_with_memory_linear_model_follows_its_act(tmp_path, memory, method):
+    """The washed-out residual with memory: baseline, feature filters and the network with its
+    memory in one model, which follows the composite's ``act``."""
+    policy = _trained_residual(tmp_path, **memory)
     M, loop, y0 = _steady_loop(policy)
-    assert "LSTM state" in loop.ctrl.method
+    assert method in loop.ctrl.method
     assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 2e-2
