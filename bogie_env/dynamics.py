@@ -408,8 +408,8 @@ def _rhs_row(x, V, Q, yt, p, out):
 # row loops that call it (atomic counts across threads cost time, docs/performance.md)
 @njit(cache=True, error_model="numpy", _nrt=False)
 def rhs_row_call(x, V, Q, yt, p, out):
-    """:func:`_rhs_row` as a compiled function of its own, for callers outside the stepping
-    interval (the observation's frame acceleration): each kernel that calls it links it instead
+    """:func:`_rhs_row` as a compiled function of its own, for compiled callers outside the stepping
+    interval (studies, benchmarks): each kernel that calls it links it instead
     of re-running numba's inlining of the whole right-hand side, which is most of their
     compilation time. Same arithmetic, same bits."""
     _rhs_row(x, V, Q, yt, p, out)

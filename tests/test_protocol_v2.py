@@ -429,6 +429,7 @@ def test_ramp_down_ideal_passive_is_the_same_for_every_seed(passive_ramp_down_id
     assert critical_speed(model).speed_kmh <= entry["kmh"] <= off_flange, (entry, off_flange)
 
 
+@pytest.mark.slow  # a convergence check: 20 s each on 2 cores
 @pytest.mark.parametrize("version", [2, 3])
 def test_ramp_down_ideal_does_not_move_with_the_step(version):
     """lqr at conicity 0.2, seed 0, hunting ending inside the ramp. Protocol v2: on the ideal

@@ -21,7 +21,9 @@ the observation the env gives at the operating point (the closed loop's equilibr
 **SB3 policies.** :func:`sb3_controller_model` (policy, y0) is the API for an SB3 policy (or any
 object with an SB3 ``model`` and, optionally, VecNormalize statistics ``obs_mean``,
 ``obs_var``, ``clip_obs``, ``epsilon``): a static model whose ``d`` is the Jacobian of the
-deterministic action by torch autograd (:func:`sb3_jacobian_autograd`). A residual policy,
+deterministic action by torch autograd (:func:`sb3_jacobian_autograd`); with frame stacking the
+earlier frames are its states (:func:`stack_model`), a recurrent policy's its LSTM state
+(:func:`lstm_controller_model`). A residual policy,
 ``action = clip(baseline(obs) + scale * NN(obs), -1, 1)``, is
 :func:`residual_controller_model` (baseline's model, ``sb3_jacobian_autograd(nn, y0)``,
 scale, action at ``y0``): the baseline's model with ``scale * J`` added to its
