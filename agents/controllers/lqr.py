@@ -185,6 +185,16 @@ def add_rate_cost(q: np.ndarray, r: np.ndarray, n_x: int, delays, bandwidth: np.
     return q + m_z.T @ weight @ m_z, m_z.T @ weight @ m_u, r + m_u.T @ weight @ m_u
 
 
+def interpolation_weights(speeds_kmh: np.ndarray, speed_kmh: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(i0, i1, w)``: each row's speed between the design speeds ``i0`` and ``i1`` (a uniform
+    grid), weight ``w`` (n, 1, 1) on ``i1``; clipped to the grid."""
+    v = np.clip(speed_kmh, speeds_kmh[0], speeds_kmh[-1])
+    pos = (v - speeds_kmh[0]) / (speeds_kmh[1] - speeds_kmh[0]) if len(speeds_kmh) > 1 else v * 0
+    i0 = np.clip(np.floor(pos).astype(int), 0, len(speeds_kmh) - 1)
+    i1 = np.clip(i0 + 1, 0, len(speeds_kmh) - 1)
+    return i0, i1, (pos - i0)[:, None, None]
+
+
 @dataclass
 class DesignPoint:
     speed: float  # m/s
@@ -275,11 +285,7 @@ class LQRController(Controller):
     def _interp(self, stack: np.ndarray, speed_kmh: np.ndarray) -> np.ndarray:
         """``stack`` (one matrix per design speed) interpolated linearly at each row's speed,
         clipped to the design range."""
-        v = np.clip(speed_kmh, self.speeds_kmh[0], self.speeds_kmh[-1])
-        pos = (v - self.speeds_kmh[0]) / (self.speeds_kmh[1] - self.speeds_kmh[0]) if len(self.speeds_kmh) > 1 else v * 0
-        i0 = np.clip(np.floor(pos).astype(int), 0, len(self.speeds_kmh) - 1)
-        i1 = np.clip(i0 + 1, 0, len(self.speeds_kmh) - 1)
-        w = (pos - i0)[:, None, None]
+        i0, i1, w = interpolation_weights(self.speeds_kmh, speed_kmh)
         return (1 - w) * stack[i0] + w * stack[i1]
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:

@@ -319,15 +319,20 @@ def load_sb3_policy(path: str | Path, trusted: bool = False, env_config: dict | 
 def check_shapes(policy, env_config: dict) -> None:
     """An SB3 policy's observation and action shapes must match the env it will drive."""
     model = getattr(policy, "model", None)
-    if model is None:
+    frames = getattr(policy, "frames", None)  # a distilled student's frame history
+    if model is None and frames is None:
         return
     from bogie_env.envs.config import merge_config
     from bogie_env.envs.task import HuntingTask
 
     task = HuntingTask(1, merge_config(env_config, {"observation": {"type": policy.observation_type}}))
-    frame = getattr(getattr(policy, "network", policy), "frame_shape", model.observation_space.shape)  # one of frame_stack
-    pairs = [("observation", frame, task.observation_space.shape),
-             ("action", model.action_space.shape, task.action_space.shape)]  # fmt: skip
+    if model is None:
+        pairs = [("observation", (frames.obs_dim,), task.observation_space.shape),
+                 ("action", (frames.action_dim,), task.action_space.shape)]  # fmt: skip
+    else:
+        frame = getattr(getattr(policy, "network", policy), "frame_shape", model.observation_space.shape)  # one of frame_stack
+        pairs = [("observation", frame, task.observation_space.shape),
+                 ("action", model.action_space.shape, task.action_space.shape)]  # fmt: skip
     if getattr(policy, "features", None) is not None:  # a residual on features: its filters take the env's observation
         pairs = pairs[1:]
         if getattr(getattr(policy.features, "filters", None), "n_obs", task.observation_space.shape[0]) != task.observation_space.shape[0]:
@@ -383,8 +388,13 @@ def load_policy(spec: str, env_config: dict, trusted: bool = False, env_id: str 
                 f"policy {spec!r} not found: give one of {', '.join(list(CLASSICAL) + ['pretrained'])} "
                 "or the path of a training run folder or SB3 .zip"
             )
-        if not trusted:
+        from .distilled import is_student, load_student
+
+        if is_student(path):  # plain arrays and JSON: no code, no trust needed
+            policy = load_student(path)
+        elif not trusted:
             raise ConfigError(f"policy {spec!r} is a path: {TRUST_HINT}")
-        policy = load_sb3_policy(path, trusted=True, env_config=env_config)
+        else:
+            policy = load_sb3_policy(path, trusted=True, env_config=env_config)
     check_shapes(policy, env_config)
     return policy

@@ -143,18 +143,27 @@ class PrivilegedController(LQRController):
         n = obs.shape[0]
         if self.force_state.shape[0] != n:
             self.reset(n)
-        z = np.concatenate([self.state_estimate(obs), self.force_state, self.registers()], axis=1)
-        gains = self.gain_at(self.speed_kmh(obs))
-        actions = np.clip(-np.einsum("nij,nj->ni", gains, z), -1.0, 1.0)
+        actions = self.command(self.state_estimate(obs), self.gain_at(self.speed_kmh(obs)))
         self._advance(actions)
         return actions.astype(np.float32)
 
-    def _advance(self, actions: np.ndarray) -> None:
+    def command(self, x_lat: np.ndarray, gains: np.ndarray) -> np.ndarray:
+        """The commands for lateral states ``x_lat`` (n, 16) with ``gains`` (n, n_act, n_z) and the
+        loop states as they stand (nothing advances: :meth:`advance` does)."""
+        z = np.concatenate([x_lat, self.force_state, self.registers()], axis=1)
+        return np.clip(-np.einsum("nij,nj->ni", gains, z), -1.0, 1.0)
+
+    def advance(self, actions: np.ndarray, channel_gain: np.ndarray | None = None) -> None:
+        """The loop states one step on after the env was sent ``actions`` (which may be another
+        controller's: a teacher labelling a student's run follows the commands actually sent)."""
+        self._advance(actions, channel_gain)
+
+    def _advance(self, actions: np.ndarray, channel_gain: np.ndarray | None = None) -> None:
         """The loop states one step on, as the design plant has them: each channel's lag driven
         by its oldest register (or, without delay, the new command), then the registers shift."""
         held = np.stack([self.history[:, d - 1, j] if d > 0 else actions[:, j] for j, d in enumerate(self.delays)], axis=1)
         w = np.exp(-self.bandwidth * self.dt)
-        target = held * self.max_force * self.channel_gain
+        target = held * self.max_force * (self.channel_gain if channel_gain is None else channel_gain)
         self.force_state = target + (self.force_state - target) * w
         if self.max_delay:
             self.history = np.concatenate([actions[:, None, :], self.history[:, :-1]], axis=1)

@@ -1,0 +1,145 @@
+"""A student distilled from the privileged reference: sensors and its own commands in, commands out.
+
+:class:`DistilledPolicy` is a multilayer perceptron on the last ``history`` frames of what a
+buildable controller has: each frame is the env's sensor observation (v1: six sensors, the
+speed and the measured actuator forces) and the command the controller sent one step before.
+It is trained by :mod:`bogie_agents.training.distill` (DAgger: Ross, Gordon & Bagnell 2011) to
+give the command that the privileged reference (:mod:`bogie_agents.controllers.privileged`),
+told the true scenario and seeing the full state, gives in the same state. It is told nothing.
+
+**Files.** A student is a folder with ``student.npz`` (the weights and the frame normalisation,
+plain arrays, read with ``allow_pickle=False``) and ``student.json`` (its shape, the env id it
+was trained on, the training config). Neither holds code, so loading one needs no trust
+(unlike an SB3 ``.zip``).
+
+The frames and the network are one function, :meth:`StudentNetwork.forward`, and one history
+class, :class:`FrameHistory`, used by training and evaluation alike.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bogie_env.fileio import atomic_output, write_text_atomic
+from bogie_env.params import ConfigError
+
+WEIGHTS_FILE = "student.npz"
+META_FILE = "student.json"
+FORMAT = "bogie-distilled-1"
+
+
+class FrameHistory:
+    """Per row, the last ``history`` frames ``[observation, previous command]``, oldest first;
+    zeros before an episode's first frame."""
+
+    def __init__(self, history: int, obs_dim: int, action_dim: int) -> None:
+        self.history, self.obs_dim, self.action_dim = int(history), int(obs_dim), int(action_dim)
+        self.frames = np.zeros((0, self.history, self.frame_dim), dtype=np.float32)
+        self.last_command = np.zeros((0, self.action_dim), dtype=np.float32)
+
+    @property
+    def frame_dim(self) -> int:
+        return self.obs_dim + self.action_dim
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        if rows is None or self.frames.shape[0] != n_envs:
+            self.frames = np.zeros((n_envs, self.history, self.frame_dim), dtype=np.float32)
+            self.last_command = np.zeros((n_envs, self.action_dim), dtype=np.float32)
+        else:
+            self.frames[rows] = 0.0
+            self.last_command[rows] = 0.0
+
+    def push(self, obs: np.ndarray) -> np.ndarray:
+        """Append each row's frame (``obs`` and its last command); the flat input, (n, history * frame_dim)."""
+        if self.frames.shape[0] != obs.shape[0]:
+            self.reset(obs.shape[0])
+        self.frames[:, :-1] = self.frames[:, 1:]
+        self.frames[:, -1, : self.obs_dim] = obs
+        self.frames[:, -1, self.obs_dim :] = self.last_command
+        return self.frames.reshape(obs.shape[0], -1)
+
+    def sent(self, commands: np.ndarray) -> None:
+        """The commands the env was given this step (they enter the next frame)."""
+        self.last_command[:] = commands
+
+
+class StudentNetwork:
+    """``u = clip(W_L tanh(... tanh(W_1 (x - mean) / std + b_1) ...) + b_L, -1, 1)`` in numpy."""
+
+    def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray], mean: np.ndarray, std: np.ndarray) -> None:
+        self.weights = [np.asarray(w, dtype=np.float32) for w in weights]
+        self.biases = [np.asarray(b, dtype=np.float32) for b in biases]
+        self.mean, self.std = np.asarray(mean, dtype=np.float32), np.asarray(std, dtype=np.float32)
+
+    def forward(self, x: np.ndarray) -> np.ndarray:
+        h = (x - self.mean) / self.std
+        for w, b in zip(self.weights[:-1], self.biases[:-1]):
+            h = np.tanh(h @ w.T + b)
+        return np.clip(h @ self.weights[-1].T + self.biases[-1], -1.0, 1.0)
+
+
+class DistilledPolicy:
+    """A distilled student acting on sensor observations (module docstring)."""
+
+    observation_type = "sensors"
+    knows = "nothing"
+
+    def __init__(self, network: StudentNetwork, history: int, obs_dim: int, action_dim: int, name: str = "distilled",
+                 meta: dict[str, Any] | None = None) -> None:  # fmt: skip
+        self.network = network
+        self.frames = FrameHistory(history, obs_dim, action_dim)
+        self.name = name
+        self.meta = meta or {}
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        self.frames.reset(n_envs, rows)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs, dtype=np.float32)
+        if obs.shape[-1] != self.frames.obs_dim:
+            raise ConfigError(f"policy {self.name!r} takes observations of {self.frames.obs_dim} entries; got {obs.shape[-1]}")
+        u = self.network.forward(self.frames.push(obs)).astype(np.float32)
+        self.frames.sent(u)
+        return u
+
+
+def save_student(folder: str | Path, network: StudentNetwork, history: int, obs_dim: int, action_dim: int,
+                 meta: dict[str, Any]) -> Path:  # fmt: skip
+    """Write ``student.npz`` and ``student.json`` into ``folder`` atomically."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    arrays = {"mean": network.mean, "std": network.std}
+    for i, (w, b) in enumerate(zip(network.weights, network.biases)):
+        arrays[f"w{i}"], arrays[f"b{i}"] = w, b
+    with atomic_output(folder / WEIGHTS_FILE, suffix=".npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+    info = {"format": FORMAT, "history": int(history), "obs_dim": int(obs_dim), "action_dim": int(action_dim),
+            "layers": len(network.weights), **meta}  # fmt: skip
+    write_text_atomic(folder / META_FILE, json.dumps(info, indent=1, default=float) + "\n")
+    return folder
+
+
+def is_student(path: str | Path) -> bool:
+    path = Path(path)
+    return path.is_dir() and (path / WEIGHTS_FILE).is_file() and (path / META_FILE).is_file()
+
+
+def load_student(folder: str | Path) -> DistilledPolicy:
+    """A :class:`DistilledPolicy` from a folder of :func:`save_student` (no code is loaded)."""
+    folder = Path(folder)
+    meta = json.loads((folder / META_FILE).read_text())
+    if meta.get("format") != FORMAT:
+        raise ConfigError(f"{folder / META_FILE}: 'format' = {meta.get('format')!r}; allowed: {FORMAT!r}")
+    with np.load(folder / WEIGHTS_FILE, allow_pickle=False) as z:
+        n = int(meta["layers"])
+        network = StudentNetwork([z[f"w{i}"] for i in range(n)], [z[f"b{i}"] for i in range(n)], z["mean"], z["std"])
+    expected = int(meta["history"]) * (int(meta["obs_dim"]) + int(meta["action_dim"]))
+    if network.weights[0].shape[1] != expected or network.mean.shape != (expected,):
+        raise ConfigError(f"{folder / WEIGHTS_FILE}: the first layer takes {network.weights[0].shape[1]} inputs; "
+                          f"{META_FILE} says history x frame = {expected}")  # fmt: skip
+    return DistilledPolicy(network, meta["history"], meta["obs_dim"], meta["action_dim"], name=str(folder), meta=meta)

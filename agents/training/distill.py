@@ -1,0 +1,339 @@
+"""Distil the privileged reference into a student that sees only the sensors (DAgger).
+
+The privileged reference (:class:`bogie_agents.controllers.privileged.PrivilegedController`) is
+told each run's true scenario and sees the full state; it is the headroom on worn wheels. A
+student that sees what a buildable controller sees (the v1 sensors and its own past commands,
+:class:`bogie_agents.controllers.distilled.DistilledPolicy`) learns its commands by DAgger
+(Ross, Gordon & Bagnell, AISTATS 2011), the teacher-student route of legged locomotion:
+
+1. **Scenario bank.** ``bank.size`` scenarios drawn from the env's own randomisation
+   (``Bogie/Hunting-v1``: conicity 0.025-0.3, stiffnesses, creep, dampers, axle load, actuator
+   gains, failed actuators; stuck actuators are left out, the reference does not model them),
+   the reference designed once for each. Every episode runs one of them (reset options).
+2. **Rollouts.** ``n_envs`` rows run the env's ramps. In iteration 0 the teacher drives; in
+   iteration ``k`` an episode is driven by the teacher with probability ``beta0 * beta_decay**k``,
+   else by the current student. Every step is labelled with the teacher's command in the state
+   the rollout reached, the teacher's lag and delay registers following the commands actually sent.
+3. **Fit.** The student is fitted to every label so far (mean squared error, Adam), continuing
+   from the last iteration's weights.
+
+``bogie distill --config configs/agents/distill_v1.yaml --out runs/distill_v1`` writes the
+student (``student.npz``, ``student.json``) after every iteration, atomically, and a
+``progress.json`` with each iteration's figures.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from bogie_env.envs.config import make_config, merge_config
+from bogie_env.envs.registration import IDS
+from bogie_env.envs.scenario import NO_FAULT, RANGES, Scenario
+from bogie_env.envs.task import OBS_BOUND, SPEED_CENTRE_KMH, SPEED_SCALE_KMH, HuntingTask
+from bogie_env.fileio import atomic_output, load_yaml, write_text_atomic
+from bogie_env.params import ConfigError
+
+from ..controllers.distilled import FrameHistory, StudentNetwork, save_student
+from ..controllers.lqr import interpolation_weights
+from ..controllers.privileged import PrivilegedController
+
+def default_config() -> dict[str, Any]:
+    """Every key ``bogie distill`` reads; a user's config merges into it."""
+    return {
+        "seed": 0,
+        "env_id": "Bogie/Hunting-v1",
+        # the env config merged into the id's variant (ppo_v1's ramps over the whole speed range)
+        "env": {"speed": {"start_kmh_range": [100.0, 550.0], "end_kmh": 600.0, "accel": 1.5},
+                "large_perturbation_probability": 0.2},  # fmt: skip
+        "n_envs": 64,
+        # randomize: entries merged into the env's randomisation for the bank's draws only (e.g. wider
+        # degradation ranges or more failed actuators than the env's episodes draw)
+        "bank": {"size": 96, "randomize": {}},
+        "student": {"history": 16, "hidden": [256, 256]},
+        "dagger": {"iterations": 6, "steps": 3000, "beta0": 1.0, "beta_decay": 0.5},
+        "fit": {"epochs": 3, "batch_size": 2048, "learning_rate": 1.0e-3, "torch_threads": 2},
+        "max_wall_time_s": 3600,
+    }
+
+
+def load_config(path: str | Path | None, overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The default config, the YAML file's keys and ``overrides`` merged, every known key checked."""
+    user = load_yaml(Path(path)) if path else {}
+    cfg = _merge(default_config(), user or {}, "")
+    cfg = _merge(cfg, dict(overrides or {}), "")
+    if cfg["env_id"] not in IDS:
+        raise ConfigError(f"distill config 'env_id' = {cfg['env_id']!r}; allowed: one of {', '.join(IDS)}")
+    for where, value, low in (("n_envs", cfg["n_envs"], 1), ("bank.size", cfg["bank"]["size"], 1),
+                              ("student.history", cfg["student"]["history"], 1),
+                              ("dagger.iterations", cfg["dagger"]["iterations"], 1), ("dagger.steps", cfg["dagger"]["steps"], 1),
+                              ("fit.epochs", cfg["fit"]["epochs"], 1), ("fit.batch_size", cfg["fit"]["batch_size"], 1)):  # fmt: skip
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ConfigError(f"distill config {where!r} = {value!r}; allowed: an integer >= {low}")
+    for where, value in (("dagger.beta0", cfg["dagger"]["beta0"]), ("dagger.beta_decay", cfg["dagger"]["beta_decay"])):
+        if not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
+            raise ConfigError(f"distill config {where!r} = {value!r}; allowed: a number in [0, 1]")
+    return cfg
+
+
+def _merge(base: dict, user: Mapping[str, Any], where: str) -> dict:
+    out = copy.deepcopy(base)
+    for key, value in user.items():
+        name = f"{where}{key}"
+        if key not in base:
+            raise ConfigError(f"distill config key {name!r} is not known; known here: {', '.join(base)}")
+        if isinstance(base[key], dict) and key not in ("env", "randomize"):
+            if not isinstance(value, Mapping):
+                raise ConfigError(f"distill config {name!r} must be a mapping; got {value!r}")
+            out[key] = _merge(base[key], value, name + ".")
+        else:
+            out[key] = _deep_update(base[key], value) if key in ("env", "randomize") else copy.deepcopy(value)
+    return out
+
+
+def _deep_update(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict:
+    """A partial env config merged into another (checked later, by ``make_config``)."""
+    if not isinstance(update, Mapping):
+        raise ConfigError(f"distill config: expected a mapping of env config keys; got {update!r}")
+    out = copy.deepcopy(dict(base))
+    for key, value in update.items():
+        out[key] = _deep_update(out[key], value) if isinstance(out.get(key), Mapping) and isinstance(value, Mapping) else copy.deepcopy(value)
+    return out
+
+
+def env_config(cfg: Mapping[str, Any]) -> dict:
+    """The env config of the rollouts: the id's variant with the distill config's ``env``."""
+    return make_config(cfg["env"], variant=IDS[cfg["env_id"]])
+
+
+# ---- the scenario bank and its teachers ---------------------------------------------------------
+def scenario_options(s: Scenario) -> dict[str, Any]:
+    """Reset options that make an episode run scenario ``s`` (whatever the row's RNG draws)."""
+    options: dict[str, Any] = {name: float(getattr(s, name)) for name in RANGES if name not in ("actuator_gain", "conicity")}
+    if s.conicity is not None:
+        options["conicity"] = float(s.conicity)
+    options["actuator_gain"] = float(s.actuator_gain[0]) if np.all(s.actuator_gain == s.actuator_gain[0]) else None
+    if options["actuator_gain"] is None:
+        from bogie_env.actuators import CHANNEL_NAMES
+
+        options["actuator_gain"] = dict(zip(CHANNEL_NAMES, map(float, s.actuator_gain)))
+    options["failed_actuator"] = s.failed_actuator or NO_FAULT
+    options["stuck_actuator"] = NO_FAULT
+    return options
+
+
+def draw_bank(env_cfg: dict, size: int, seed: int, randomize: Mapping[str, Any] | None = None) -> list[Scenario]:
+    """``size`` scenarios of the env's randomisation with ``randomize`` merged in (stuck actuators
+    left out), drawn by a task's own reset with seeds ``seed + i``."""
+    cfg = merge_config(env_cfg, {"randomize": {**env_cfg["randomize"], **randomize}}) if randomize else env_cfg
+    task = HuntingTask(size, cfg)
+    task.seed_rows(np.arange(size), [seed + i for i in range(size)])
+    task.reset_rows(np.arange(size), {"stuck_actuator": NO_FAULT})
+    return [copy.deepcopy(task.scenarios[i]) for i in range(size)]
+
+
+class TeacherBank:
+    """The reference designed for every bank scenario; each row labelled by its scenario's design.
+
+    One :class:`PrivilegedController` holds the rows' loop states (lag, command registers); the
+    gains and channel gains are the row's scenario's."""
+
+    def __init__(self, env_cfg: dict, bank: list[Scenario], progress=None) -> None:
+        designs = []
+        for k, s in enumerate(bank):
+            designs.append(PrivilegedController(env_cfg).tell(s, env_cfg) if k == 0 else designs[0].tell(s, env_cfg))
+            if progress:
+                progress(k + 1, len(bank))
+        self.speeds_kmh = designs[0].speeds_kmh
+        self.gains = np.stack([d.gains for d in designs])  # (M, S, n_act, n_z)
+        self.channel_gains = np.stack([d.channel_gain for d in designs])  # (M, n_act)
+        self.loop = designs[0]
+        self.row_scenario = np.zeros(0, dtype=np.int64)
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None, scenarios: np.ndarray | None = None) -> None:
+        if rows is None or self.row_scenario.shape[0] != n_envs:
+            self.row_scenario = np.zeros(n_envs, dtype=np.int64)
+            rows = np.arange(n_envs)
+            self.loop.reset(n_envs)
+        else:
+            self.loop.reset(n_envs, rows)
+        if scenarios is not None:
+            self.row_scenario[rows] = scenarios
+
+    def command(self, state_obs: np.ndarray) -> np.ndarray:
+        """Each row's reference command for its full-state observation (:func:`state_observation`):
+        the reference acts on the float32 observation the protocol gives it, whose rounding moves
+        its command by up to 1e-2 at hunting amplitudes (gains with large, cancelling terms)."""
+        i0, i1, w = interpolation_weights(self.speeds_kmh, self.loop.speed_kmh(state_obs))
+        m = self.row_scenario
+        gains = (1 - w) * self.gains[m, i0] + w * self.gains[m, i1]
+        return self.loop.command(self.loop.state_estimate(state_obs), gains)
+
+    def advance(self, sent: np.ndarray) -> None:
+        self.loop.advance(sent, self.channel_gains[self.row_scenario])
+
+
+def state_observation(task: HuntingTask) -> np.ndarray:
+    """The observation ``observation.type = "state"`` would give for the task's rows now (scaled
+    states, then the speed; float32, clipped as the env clips), without noise."""
+    states = np.clip(task.states / task.state_scales, -OBS_BOUND, OBS_BOUND)
+    speed = np.clip((task.speed_kmh - SPEED_CENTRE_KMH) / SPEED_SCALE_KMH, -OBS_BOUND, OBS_BOUND)
+    return np.concatenate([states, speed[:, None]], axis=1).astype(np.float32)
+
+
+# ---- rollouts -----------------------------------------------------------------------------------
+class Rollouts:
+    """``n_envs`` rows of the task, each episode on a bank scenario, the teacher labelling every step."""
+
+    def __init__(self, env_cfg: dict, n_envs: int, bank: list[Scenario], teacher: TeacherBank, history: int, seed: int) -> None:
+        self.task = HuntingTask(n_envs, env_cfg)
+        self.n = n_envs
+        self.options = [scenario_options(s) for s in bank]
+        self.teacher = teacher
+        self.rng = np.random.default_rng(seed)
+        self.next_seed = seed * 1_000_003 + 1
+        self.frames = FrameHistory(history, self.task.observation_dim, self.task.action_dim)
+        self.by_teacher = np.ones(n_envs, dtype=bool)
+        self.teacher.reset(n_envs)
+        self.frames.reset(n_envs)
+        self.beta = 1.0
+        self._start(np.arange(n_envs))
+
+    def _start(self, rows: np.ndarray) -> None:
+        picks = self.rng.integers(len(self.options), size=rows.size)
+        self.task.seed_rows(rows, [self.next_seed + i for i in range(rows.size)])
+        self.next_seed += rows.size
+        for r, m in zip(rows, picks):
+            self.task.reset_rows(np.array([r]), self.options[int(m)])
+        self.teacher.reset(self.n, rows, picks)
+        self.frames.reset(self.n, rows)
+        self.by_teacher[rows] = self.rng.random(rows.size) < self.beta
+
+    def run(self, steps: int, student: StudentNetwork | None, beta: float) -> tuple[np.ndarray, np.ndarray, dict]:
+        """``steps`` env steps of every row: the student's inputs and the teacher's labels."""
+        self.beta = beta if student is not None else 1.0
+        self.by_teacher[:] = self.rng.random(self.n) < self.beta
+        inputs = np.empty((steps, self.n, self.frames.history * self.frames.frame_dim), dtype=np.float32)
+        labels = np.empty((steps, self.n, self.task.action_dim), dtype=np.float32)
+        episodes, max_kmh = 0, []
+        for t in range(steps):
+            x = self.frames.push(self.task.obs)
+            inputs[t] = x
+            label = self.teacher.command(state_observation(self.task))
+            labels[t] = label
+            sent = label if student is None else np.where(self.by_teacher[:, None], label, student.forward(x))
+            self.task.step(sent)
+            self.teacher.advance(sent)
+            self.frames.sent(sent)
+            done = np.nonzero(self.task.done)[0]
+            if done.size:
+                episodes += done.size
+                max_kmh.extend(self.task.speed_kmh[done].tolist())
+                self._start(done)
+        return inputs.reshape(-1, inputs.shape[-1]), labels.reshape(-1, labels.shape[-1]), {"episodes": episodes}
+
+
+# ---- fitting ------------------------------------------------------------------------------------
+def fit(x: np.ndarray, y: np.ndarray, hidden: list[int], epochs: int, batch_size: int, learning_rate: float,
+        seed: int, init: StudentNetwork | None = None, mean: np.ndarray | None = None, std: np.ndarray | None = None,
+        threads: int = 2) -> tuple[StudentNetwork, float]:  # fmt: skip
+    """A tanh MLP fitted to ``y`` from ``x`` (MSE, Adam); returns it and the last epoch's loss."""
+    import torch
+
+    torch.set_num_threads(threads)
+    torch.manual_seed(seed)
+    sizes = [x.shape[1], *hidden, y.shape[1]]
+    layers: list[Any] = []
+    for i in range(len(sizes) - 1):
+        layers.append(torch.nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2:
+            layers.append(torch.nn.Tanh())
+    net = torch.nn.Sequential(*layers)
+    linears = [m for m in net if isinstance(m, torch.nn.Linear)]
+    if init is not None:
+        with torch.no_grad():
+            for lin, w, b in zip(linears, init.weights, init.biases):
+                lin.weight.copy_(torch.from_numpy(w))
+                lin.bias.copy_(torch.from_numpy(b))
+    mean_t, std_t = torch.from_numpy(mean), torch.from_numpy(std)
+    xt, yt = torch.from_numpy(x), torch.from_numpy(y)
+    opt = torch.optim.Adam(net.parameters(), lr=learning_rate)
+    gen = torch.Generator().manual_seed(seed)
+    loss_value = math.nan
+    for _ in range(epochs):
+        order = torch.randperm(xt.shape[0], generator=gen)
+        total, count = 0.0, 0
+        for start in range(0, xt.shape[0], batch_size):
+            idx = order[start : start + batch_size]
+            pred = net((xt[idx] - mean_t) / std_t)
+            loss = torch.mean((pred - yt[idx]) ** 2)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * idx.numel()
+            count += idx.numel()
+        loss_value = total / count
+    weights = [lin.weight.detach().numpy().copy() for lin in linears]
+    biases = [lin.bias.detach().numpy().copy() for lin in linears]
+    return StudentNetwork(weights, biases, mean, std), loss_value
+
+
+def frame_statistics(x: np.ndarray, history: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-entry mean and std of one frame (the same for every frame of the history), tiled."""
+    frames = x.reshape(x.shape[0], history, -1)[:, -1]
+    mean = frames.mean(axis=0)
+    std = np.maximum(frames.std(axis=0), 1e-3)
+    return np.tile(mean, history).astype(np.float32), np.tile(std, history).astype(np.float32)
+
+
+# ---- the command --------------------------------------------------------------------------------
+def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path:
+    """Run DAgger with ``cfg`` (:func:`load_config`) and write the student into ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    env_cfg = env_config(cfg)
+    seed = int(cfg["seed"])
+
+    def say(text: str) -> None:
+        if progress:
+            print(f"[distill {time.time() - t0:7.1f} s] {text}", flush=True)
+
+    bank = draw_bank(env_cfg, cfg["bank"]["size"], seed * 100_000 + 50_000, cfg["bank"]["randomize"])
+    teacher = TeacherBank(env_cfg, bank, (lambda k, m: say(f"designed {k}/{m} scenarios") if k % 16 == 0 or k == m else None))
+    roll = Rollouts(env_cfg, cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed)
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
+    student: StudentNetwork | None = None
+    mean = std = None
+    record: list[dict[str, Any]] = []
+    d, f = cfg["dagger"], cfg["fit"]
+    for k in range(d["iterations"]):
+        beta = float(d["beta0"]) * float(d["beta_decay"]) ** k
+        t_roll = time.time()
+        x, y, info = roll.run(d["steps"], student, beta)
+        t_fit = time.time()
+        xs.append(x)
+        ys.append(y)
+        if mean is None:
+            mean, std = frame_statistics(x, cfg["student"]["history"])
+        student, loss = fit(np.concatenate(xs), np.concatenate(ys), list(cfg["student"]["hidden"]), f["epochs"], f["batch_size"],
+                            f["learning_rate"], seed + k, student, mean, std, f["torch_threads"])  # fmt: skip
+        record.append({"iteration": k, "beta": beta, "samples": int(sum(a.shape[0] for a in xs)), "episodes": info["episodes"],
+                       "loss": loss, "label_variance": float(np.concatenate(ys).var(axis=0).mean()), "rollout_s": t_fit - t_roll, "fit_s": time.time() - t_fit})  # fmt: skip
+        save_student(out, student, cfg["student"]["history"], roll.task.observation_dim, roll.task.action_dim,
+                     {"env_id": cfg["env_id"], "config": cfg, "iterations_done": k + 1})  # fmt: skip
+        write_text_atomic(out / "progress.json", json.dumps({"iterations": record, "wall_time_s": time.time() - t0}, indent=1) + "\n")
+        left = (time.time() - t0) / (k + 1) * (d["iterations"] - k - 1)
+        say(f"iteration {k + 1}/{d['iterations']}: beta {beta:.3f}, {record[-1]['samples']} samples, loss {loss:.4g}, "
+            f"rollout {record[-1]['rollout_s']:.0f} s, fit {record[-1]['fit_s']:.0f} s; about {left:.0f} s left")  # fmt: skip
+        if time.time() - t0 > cfg["max_wall_time_s"]:
+            say(f"max_wall_time_s = {cfg['max_wall_time_s']} reached; the student of iteration {k + 1} is kept")
+            break
+    return out

@@ -1,0 +1,121 @@
+"""Distillation of the privileged reference (agents/training/distill.py, agents/controllers/distilled.py):
+the batched teacher labels exactly as the privileged controller acts, the student sees in training
+exactly what it sees at evaluation, its files load without trust, and bad configs name the key."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from bogie_agents.controllers.distilled import META_FILE, StudentNetwork, load_student, save_student
+from bogie_agents.controllers.policies import load_policy
+from bogie_agents.controllers.privileged import PrivilegedController
+from bogie_agents.training.distill import (Rollouts, TeacherBank, distill, draw_bank, env_config, load_config, scenario_options,
+                                           state_observation)
+from bogie_env.envs.config import merge_config
+from bogie_env.envs.task import HuntingTask
+from bogie_env.params import ConfigError
+
+SHORT = {"speed": {"start_kmh_range": [180.0, 200.0], "end_kmh": 260.0, "accel": 2.0}, "large_perturbation_probability": 1.0}
+
+
+def _cfg(**changes):
+    return load_config(None, {"env": SHORT, "n_envs": 2, **changes})
+
+
+@pytest.fixture(scope="module")
+def bank_and_teacher():
+    cfg = _cfg()
+    env_cfg = env_config(cfg)
+    bank = [dataclasses.replace(s, conicity=lam) for s, lam in zip(draw_bank(env_cfg, 2, 7, {"actuator_failure_probability": 0.0}), (0.05, 0.3))]
+    assert bank[0].primary_longitudinal_stiffness != 1.0  # the env's other draws stay in the bank
+    return env_cfg, bank, TeacherBank(env_cfg, bank)
+
+
+def test_scenario_options_reproduce_the_scenario(bank_and_teacher):
+    env_cfg, bank, _ = bank_and_teacher
+    task = HuntingTask(2, env_cfg)
+    task.seed_rows(np.arange(2), [123, 456])  # other draws than the bank's: the options must override them
+    for i, s in enumerate(bank):
+        task.reset_rows(np.array([i]), scenario_options(s))
+        assert task.scenarios[i].as_dict() == s.as_dict()
+
+
+def test_teacher_bank_labels_as_the_privileged_controller_acts(bank_and_teacher):
+    """Row i of the bank's teacher gives, step after step, the command of a PrivilegedController
+    told row i's scenario and fed the env's own full-state observation, which the teacher's
+    state_observation reproduces bit for bit from the sensor task's states."""
+    env_cfg, bank, teacher = bank_and_teacher
+    state_cfg = merge_config(env_cfg, {"observation": {"type": "state"}, "sensors": {"enabled": False}})
+    task = HuntingTask(2, state_cfg)
+    task.seed_rows(np.arange(2), [1, 2])
+    for i, s in enumerate(bank):
+        task.reset_rows(np.array([i]), scenario_options(s))
+    controllers = [PrivilegedController(env_cfg).tell(s, env_cfg) for s in bank]
+    for c in controllers:
+        c.reset(1)
+    teacher.reset(2, np.arange(2), np.arange(2))
+    for _ in range(60):
+        labels = teacher.command(state_observation(task))
+        np.testing.assert_array_equal(state_observation(task), task.obs[:, :21])  # then the actuator forces
+        acts = np.concatenate([c.act(task.obs[i : i + 1]) for i, c in enumerate(controllers)])
+        np.testing.assert_array_equal(labels.astype(np.float32), acts)
+        task.step(labels)
+        teacher.advance(labels)
+    assert np.abs(labels).max() > 1e-3  # the check saw real commands
+
+
+def test_training_inputs_are_what_the_saved_student_sees(tmp_path, bank_and_teacher):
+    """The student driving the rollouts (beta 0) and the same student saved, loaded and fed the
+    rollout's observations see the same inputs and send the same commands: no train/evaluation skew."""
+    env_cfg, bank, teacher = bank_and_teacher
+    rng = np.random.default_rng(0)
+    history, obs_dim, action_dim = 3, 11, 4
+    frame = obs_dim + action_dim
+    sizes = [history * frame, 8, action_dim]
+    network = StudentNetwork([rng.normal(0, 0.5, (sizes[i + 1], sizes[i])) for i in range(2)],
+                             [rng.normal(0, 0.1, sizes[i + 1]) for i in range(2)],
+                             np.zeros(sizes[0]), np.ones(sizes[0]))  # fmt: skip
+    roll = Rollouts(env_cfg, 2, bank, teacher, history, seed=5)
+    steps = 40
+    inputs, _, _ = roll.run(steps, network, beta=0.0)
+    assert not roll.by_teacher.any() and not roll.task.done.any()
+    inputs = inputs.reshape(steps, 2, history, frame)
+    save_student(tmp_path / "s", network, history, obs_dim, action_dim, {"env_id": "Bogie/Hunting-v1"})
+    student = load_policy(str(tmp_path / "s"), env_cfg)  # plain arrays: no trust needed
+    student.reset(2)
+    for t in range(steps):
+        u = student.act(inputs[t, :, -1, :obs_dim])
+        np.testing.assert_array_equal(student.frames.frames, inputs[t])
+        if t + 1 < steps:
+            np.testing.assert_array_equal(u, inputs[t + 1, :, -1, obs_dim:])
+    assert np.abs(inputs[1:, :, -1, obs_dim:]).max() > 1e-2  # the student did command something
+
+
+def test_student_files_are_checked(tmp_path):
+    network = StudentNetwork([np.zeros((4, 30))], [np.zeros(4)], np.zeros(30), np.ones(30))
+    save_student(tmp_path, network, 2, 11, 4, {})
+    assert load_student(tmp_path).act(np.zeros((3, 11))).shape == (3, 4)
+    meta = json.loads((tmp_path / META_FILE).read_text())
+    meta["history"] = 3
+    (tmp_path / META_FILE).write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match="first layer takes 30 inputs"):
+        load_student(tmp_path)
+
+
+@pytest.mark.parametrize("changes, match", [({"n_envs": 0}, "'n_envs' = 0"), ({"dagger": {"beta0": 2}}, "dagger.beta0"),
+                                            ({"dagger": {"betta": 1}}, "dagger.betta"), ({"env_id": "Bogie/Nope-v1"}, "env_id")])  # fmt: skip
+def test_bad_config_names_the_key(changes, match):
+    with pytest.raises(ConfigError, match=match):
+        load_config(None, changes)
+
+
+def test_distill_writes_a_student_that_moves_toward_the_teacher(tmp_path):
+    cfg = _cfg(bank={"size": 2}, dagger={"iterations": 2, "steps": 150}, student={"history": 2, "hidden": [16]},
+               fit={"epochs": 20, "batch_size": 64})  # fmt: skip
+    out = distill(cfg, tmp_path / "run", progress=False)
+    progress = json.loads((out / "progress.json").read_text())["iterations"]
+    assert [p["iteration"] for p in progress] == [0, 1]
+    assert progress[-1]["loss"] < 0.5 * progress[-1]["label_variance"]  # it explains most of the teacher's commands
+    assert load_student(out).frames.history == 2
