@@ -7,9 +7,10 @@
     bogie margins --policy lqr --policy pretrained --speeds 300,400,500
     bogie margins --env Bogie/Hunting-v1 --policy passive --policy lqg --conicity 0.05 --json
     bogie tune --algo ppo --trials 4 --out runs/tune_ppo          (needs the [distributed] extra)
+    bogie distill --config configs/agents/distill_v1.yaml --out runs/distill_v1
 
 The library stands alone (``python -m bogie_env.cli`` has the analysis commands); this module
-adds train, tune, evaluate, results and margins to the same parser. Training and SB3 policies need the
+adds train, distill, tune, evaluate, results and margins to the same parser. Training and SB3 policies need the
 ``[agents]`` extra; the classical controllers do not.
 """
 
@@ -46,6 +47,19 @@ def cmd_train(args: argparse.Namespace) -> int:
     summary = train_from_cli(args.algo, args.config, args.out, args.timesteps, args.seed, not args.no_resume,
                              not args.no_progress)  # fmt: skip
     print_json(summary)
+    return 0
+
+
+@command("distill", "distil the privileged reference into a student that sees only the sensors (DAgger); writes OUT/student.npz")
+@argument("--seed", type=int, default=None, help="override the config's seed")
+@argument("--out", required=True, help="student folder, e.g. runs/distill_v1")
+@argument("--config", default="configs/agents/distill_v1.yaml", help="distill config YAML (keys: bogie_agents.training.distill.default_config)")
+def cmd_distill(args: argparse.Namespace) -> int:
+    from .training.distill import distill, load_config
+
+    cfg = load_config(args.config, {"seed": args.seed} if args.seed is not None else None)
+    out = distill(cfg, args.out)
+    print_json({"out": str(out), "progress": json.loads((out / "progress.json").read_text())})
     return 0
 
 

@@ -8,9 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from bogie_agents.controllers.distilled import META_FILE, StudentNetwork, load_student, save_student
+from bogie_agents.controllers.distilled import META_FILE, DistilledPolicy, StudentNetwork, load_student, save_student
 from bogie_agents.controllers.policies import load_policy
 from bogie_agents.controllers.privileged import PrivilegedController
+from bogie_agents.design.margins import check_controller_model
 from bogie_agents.training.distill import (Rollouts, TeacherBank, distill, draw_bank, env_config, load_config, scenario_options,
                                            state_observation)
 from bogie_env.envs.config import merge_config
@@ -119,3 +120,27 @@ def test_distill_writes_a_student_that_moves_toward_the_teacher(tmp_path):
     assert [p["iteration"] for p in progress] == [0, 1]
     assert progress[-1]["loss"] < 0.5 * progress[-1]["label_variance"]  # it explains most of the teacher's commands
     assert load_student(out).frames.history == 2
+
+
+def _random_student(history=4, obs_dim=11, action_dim=4, scale=0.15, seed=3):
+    rng = np.random.default_rng(seed)
+    sizes = [history * (obs_dim + action_dim), 16, action_dim]
+    network = StudentNetwork([rng.normal(0, scale, (sizes[i + 1], sizes[i])) for i in range(2)],
+                             [rng.normal(0, 0.05, sizes[i + 1]) for i in range(2)],
+                             rng.normal(0, 0.1, sizes[0]), np.full(sizes[0], 0.5))  # fmt: skip
+    return DistilledPolicy(network, history, obs_dim, action_dim)
+
+
+def test_student_linear_model_follows_act():
+    """The margins' model of a student (frames and its own last command as states) follows act on
+    a random observation sequence; with the command feedback cut it does not."""
+    policy = _random_student()
+    y0 = np.random.default_rng(1).normal(0, 0.3, 11)
+    ctrl = policy.controller_model(11, 300.0, y0)
+    ctrl.check_shapes(11, 4)
+    assert ctrl.n_states == 3 * 15 + 4
+    u0 = policy.act(y0[None].astype(np.float32))[0].astype(float)
+    assert check_controller_model(policy, ctrl, y0, u0, steps=12) < 2e-2
+    cut = dataclasses.replace(ctrl, a=ctrl.a.copy())
+    cut.a[:, -4:] = 0.0  # the last command no longer enters the frames
+    assert check_controller_model(policy, cut, y0, u0, steps=12) > 0.1

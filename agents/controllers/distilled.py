@@ -98,6 +98,10 @@ class DistilledPolicy:
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         self.frames.reset(n_envs, rows)
 
+    def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray):
+        """The margins' linear model (:func:`student_controller_model`)."""
+        return student_controller_model(self, y0)
+
     def act(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=np.float32)
         if obs.shape[-1] != self.frames.obs_dim:
@@ -105,6 +109,47 @@ class DistilledPolicy:
         u = self.network.forward(self.frames.push(obs)).astype(np.float32)
         self.frames.sent(u)
         return u
+
+
+def student_controller_model(policy: "DistilledPolicy", y0: np.ndarray, settle_steps: int = 400):
+    """The linear model of a student at the operating observation ``y0`` (the margins' hook).
+
+    The operating command ``u0`` is where the student settles with ``y0`` held (its own commands
+    feed back through its frames). About it, the network's Jacobian on the stacked frames is a
+    frame shift register (:func:`bogie_agents.design.linear_models.stack_model`), and the frame's
+    command part is closed through one more state, the last command: ``v+ = u``. A channel at
+    the clip (|u0| = 1) has zero small-signal gain."""
+    from ..design.linear_models import ControllerModel, stack_model
+
+    y0 = np.asarray(y0, dtype=np.float32).reshape(1, -1)
+    net, frames = policy.network, policy.frames
+    policy.reset(1)
+    u_prev = None
+    for _ in range(settle_steps):
+        u = policy.act(y0)
+        if u_prev is not None and np.max(np.abs(u - u_prev)) < 1e-7:
+            break
+        u_prev = u
+    else:
+        raise ValueError(f"student {policy.name!r}: its command does not settle at the operating observation "
+                         f"within {settle_steps} steps (last change {np.max(np.abs(u - u_prev)):.2e})")  # fmt: skip
+    x0 = frames.frames.reshape(1, -1)[0].astype(np.float64)
+    jac = np.diag(1.0 / net.std.astype(np.float64))
+    h = (x0 - net.mean) / net.std
+    for w, b in zip(net.weights[:-1], net.biases[:-1]):
+        h = np.tanh(w.astype(np.float64) @ h + b)
+        jac = (1.0 - h**2)[:, None] * (w.astype(np.float64) @ jac)
+    jac = net.weights[-1].astype(np.float64) @ jac
+    jac[np.abs(u[0]) >= 1.0] = 0.0
+    n_y, n_u = frames.obs_dim, frames.action_dim
+    inner = stack_model(jac, frames.frame_dim, frames.history, "")
+    e_y = np.vstack([np.eye(n_y), np.zeros((n_u, n_y))])
+    e_u = np.vstack([np.zeros((n_y, n_u)), np.eye(n_u)])
+    a = np.block([[inner.a, inner.b @ e_u], [inner.c, inner.d @ e_u]])
+    b = np.vstack([inner.b @ e_y, inner.d @ e_y])
+    c = np.hstack([inner.c, inner.d @ e_u])
+    return ControllerModel(a, b, c, inner.d @ e_y, f"distilled student: analytic Jacobian about its settled command, "
+                           f"{frames.history} frames and its last command as states")  # fmt: skip
 
 
 def save_student(folder: str | Path, network: StudentNetwork, history: int, obs_dim: int, action_dim: int,
