@@ -112,6 +112,7 @@ def test_bad_config_names_the_key(changes, match):
         load_config(None, changes)
 
 
+@pytest.mark.slow  # 10-15 s: torch's import and fit
 def test_distill_writes_a_student_that_moves_toward_the_teacher(tmp_path):
     cfg = _cfg(bank={"size": 2}, dagger={"iterations": 2, "steps": 150}, student={"history": 2, "hidden": [16]},
                fit={"epochs": 20, "batch_size": 64})  # fmt: skip
@@ -144,3 +145,13 @@ def test_student_linear_model_follows_act():
     cut = dataclasses.replace(ctrl, a=ctrl.a.copy())
     cut.a[:, -4:] = 0.0  # the last command no longer enters the frames
     assert check_controller_model(policy, cut, y0, u0, steps=12) > 0.1
+
+
+def test_episode_steps_restart_rows_on_a_new_bank_scenario(bank_and_teacher):
+    env_cfg, bank, teacher = bank_and_teacher
+    roll = Rollouts(env_cfg, 2, bank, teacher, 2, seed=1, episode_steps=5)
+    _, labels, info = roll.run(12, None, beta=1.0)
+    assert info["episodes"] == 4  # each row restarted after steps 5 and 10
+    assert roll.steps.tolist() == [2, 2]
+    with pytest.raises(ConfigError, match="'episode_steps' = 0"):
+        load_config(None, {"episode_steps": 0})

@@ -53,6 +53,7 @@ def default_config() -> dict[str, Any]:
         "env": {"speed": {"start_kmh_range": [100.0, 550.0], "end_kmh": 600.0, "accel": 1.5},
                 "large_perturbation_probability": 0.2},  # fmt: skip
         "n_envs": 64,
+        "episode_steps": None,  # an episode's longest run (env steps; None: the ramp's end or hunting ends it)
         # randomize: entries merged into the env's randomisation for the bank's draws only (e.g. wider
         # degradation ranges or more failed actuators than the env's episodes draw)
         "bank": {"size": 96, "randomize": {}},
@@ -76,6 +77,9 @@ def load_config(path: str | Path | None, overrides: Mapping[str, Any] | None = N
                               ("fit.epochs", cfg["fit"]["epochs"], 1), ("fit.batch_size", cfg["fit"]["batch_size"], 1)):  # fmt: skip
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ConfigError(f"distill config {where!r} = {value!r}; allowed: an integer >= {low}")
+    if cfg["episode_steps"] is not None and (isinstance(cfg["episode_steps"], bool) or not isinstance(cfg["episode_steps"], int)
+                                             or cfg["episode_steps"] < 1):  # fmt: skip
+        raise ConfigError(f"distill config 'episode_steps' = {cfg['episode_steps']!r}; allowed: an integer >= 1 or null")
     for where, value in (("dagger.beta0", cfg["dagger"]["beta0"]), ("dagger.beta_decay", cfg["dagger"]["beta_decay"])):
         if not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
             raise ConfigError(f"distill config {where!r} = {value!r}; allowed: a number in [0, 1]")
@@ -191,9 +195,12 @@ def state_observation(task: HuntingTask) -> np.ndarray:
 class Rollouts:
     """``n_envs`` rows of the task, each episode on a bank scenario, the teacher labelling every step."""
 
-    def __init__(self, env_cfg: dict, n_envs: int, bank: list[Scenario], teacher: TeacherBank, history: int, seed: int) -> None:
+    def __init__(self, env_cfg: dict, n_envs: int, bank: list[Scenario], teacher: TeacherBank, history: int, seed: int,
+                 episode_steps: int | None = None) -> None:  # fmt: skip
         self.task = HuntingTask(n_envs, env_cfg)
         self.n = n_envs
+        self.episode_steps = episode_steps
+        self.steps = np.zeros(n_envs, dtype=np.int64)
         self.options = [scenario_options(s) for s in bank]
         self.teacher = teacher
         self.rng = np.random.default_rng(seed)
@@ -213,6 +220,7 @@ class Rollouts:
             self.task.reset_rows(np.array([r]), self.options[int(m)])
         self.teacher.reset(self.n, rows, picks)
         self.frames.reset(self.n, rows)
+        self.steps[rows] = 0
         self.by_teacher[rows] = self.rng.random(rows.size) < self.beta
 
     def run(self, steps: int, student: StudentNetwork | None, beta: float) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -221,7 +229,7 @@ class Rollouts:
         self.by_teacher[:] = self.rng.random(self.n) < self.beta
         inputs = np.empty((steps, self.n, self.frames.history * self.frames.frame_dim), dtype=np.float32)
         labels = np.empty((steps, self.n, self.task.action_dim), dtype=np.float32)
-        episodes, max_kmh = 0, []
+        episodes = 0
         for t in range(steps):
             x = self.frames.push(self.task.obs)
             inputs[t] = x
@@ -231,10 +239,11 @@ class Rollouts:
             self.task.step(sent)
             self.teacher.advance(sent)
             self.frames.sent(sent)
-            done = np.nonzero(self.task.done)[0]
+            self.steps += 1
+            done = self.task.done if self.episode_steps is None else self.task.done | (self.steps >= self.episode_steps)
+            done = np.nonzero(done)[0]
             if done.size:
                 episodes += done.size
-                max_kmh.extend(self.task.speed_kmh[done].tolist())
                 self._start(done)
         return inputs.reshape(-1, inputs.shape[-1]), labels.reshape(-1, labels.shape[-1]), {"episodes": episodes}
 
@@ -307,7 +316,7 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
 
     bank = draw_bank(env_cfg, cfg["bank"]["size"], seed * 100_000 + 50_000, cfg["bank"]["randomize"])
     teacher = TeacherBank(env_cfg, bank, (lambda k, m: say(f"designed {k}/{m} scenarios") if k % 16 == 0 or k == m else None))
-    roll = Rollouts(env_cfg, cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed)
+    roll = Rollouts(env_cfg, cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed, cfg["episode_steps"])
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
     student: StudentNetwork | None = None
