@@ -155,3 +155,23 @@ def test_episode_steps_restart_rows_on_a_new_bank_scenario(bank_and_teacher):
     assert roll.steps.tolist() == [2, 2]
     with pytest.raises(ConfigError, match="'episode_steps' = 0"):
         load_config(None, {"episode_steps": 0})
+
+
+def test_a_mirrored_student_is_odd_and_its_jacobian_is_exact():
+    """With a mirror mask the student commands nothing at rest and the opposite for the mirrored
+    input at any speed; its Jacobian matches central differences (float64)."""
+    rng = np.random.default_rng(4)
+    base = _random_student(history=2)
+    mirror = -np.ones(30)
+    mirror[[6, 21]] = 1.0  # the speed entry of each frame
+    mean = np.where(mirror < 0, 0.0, base.network.mean)
+    net = StudentNetwork(base.network.weights, base.network.biases, mean, base.network.std, mirror)
+    x = rng.normal(0, 0.5, 30)
+    flipped = x * mirror
+    np.testing.assert_allclose(net.forward(x[None], np.float64), -net.forward(flipped[None], np.float64), atol=1e-12)
+    rest = np.where(mirror < 0, 0.0, x)
+    np.testing.assert_allclose(net.forward(rest[None], np.float64), 0.0, atol=1e-12)
+    step = 1e-6
+    numeric = np.stack([(net.forward((x + step * e)[None], np.float64)[0] - net.forward((x - step * e)[None], np.float64)[0])
+                        / (2 * step) for e in np.eye(30)], axis=1)  # fmt: skip
+    np.testing.assert_allclose(net.jacobian(x), numeric, atol=1e-7)

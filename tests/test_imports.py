@@ -214,6 +214,7 @@ LAYERS = {
 UPWARD = {
     ("bogie_agents.controllers.residual", "bogie_agents.design.margins"),  # ResidualPolicy.controller_model
     ("bogie_agents.controllers.robust", "bogie_agents.design.margins"),  # controller_model, design_margins
+    ("bogie_agents.controllers.distilled", "bogie_agents.design.margins"),  # DistilledPolicy.controller_model
 }
 
 

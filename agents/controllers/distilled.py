@@ -68,18 +68,52 @@ class FrameHistory:
 
 
 class StudentNetwork:
-    """``u = clip(W_L tanh(... tanh(W_1 (x - mean) / std + b_1) ...) + b_L, -1, 1)`` in numpy."""
+    """``u = clip(g(z), -1, 1)``, ``z = (x - mean) / std``, ``g`` a tanh MLP in numpy.
 
-    def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray], mean: np.ndarray, std: np.ndarray) -> None:
+    With a mirror mask (``mirror``: -1 for the inputs that change sign when the bogie is mirrored
+    about the track's centre line, +1 for the speed) the student is odd in them by construction:
+    ``u = clip((g(z) - g(m z)) / 2, -1, 1)``, with ``mean`` zero on the mirrored inputs. On straight
+    track the plant is mirror symmetric and the reference is linear, so its command is odd: zero at
+    rest, the opposite for the mirrored state. An unconstrained fit leaves a command at rest (a
+    steady force that pushes a wheelset towards its flange) and lets one side differ from the other."""
+
+    def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray], mean: np.ndarray, std: np.ndarray,
+                 mirror: np.ndarray | None = None) -> None:  # fmt: skip
         self.weights = [np.asarray(w, dtype=np.float32) for w in weights]
         self.biases = [np.asarray(b, dtype=np.float32) for b in biases]
         self.mean, self.std = np.asarray(mean, dtype=np.float32), np.asarray(std, dtype=np.float32)
+        self.mirror = None if mirror is None else np.asarray(mirror, dtype=np.float32)
 
-    def forward(self, x: np.ndarray) -> np.ndarray:
-        h = (x - self.mean) / self.std
+    def hidden(self, z: np.ndarray, dtype=np.float32) -> np.ndarray:
+        """``g(z)``: the MLP on normalised inputs, unclipped."""
+        h = z
         for w, b in zip(self.weights[:-1], self.biases[:-1]):
-            h = np.tanh(h @ w.T + b)
-        return np.clip(h @ self.weights[-1].T + self.biases[-1], -1.0, 1.0)
+            h = np.tanh(h @ w.T.astype(dtype) + b.astype(dtype))
+        return h @ self.weights[-1].T.astype(dtype) + self.biases[-1].astype(dtype)
+
+    def forward(self, x: np.ndarray, dtype=np.float32) -> np.ndarray:
+        """The commands for flat inputs ``x`` (n, inputs); ``dtype``: the arithmetic's (float32 as
+        it runs; float64 for the margins' operating point)."""
+        z = (np.asarray(x, dtype=dtype) - self.mean.astype(dtype)) / self.std.astype(dtype)
+        g = self.hidden(z, dtype)
+        if self.mirror is not None:
+            g = (g - self.hidden(z * self.mirror.astype(dtype), dtype)) * dtype(0.5)
+        return np.clip(g, -1.0, 1.0)
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """d u / d x at one flat input ``x`` before the clip, float64 (n_act, inputs)."""
+        z = (np.asarray(x, dtype=np.float64) - self.mean) / self.std
+
+        def dg(z0: np.ndarray) -> np.ndarray:
+            jac = np.eye(z0.size)
+            h = z0
+            for w, b in zip(self.weights[:-1], self.biases[:-1]):
+                h = np.tanh(w.astype(np.float64) @ h + b)
+                jac = (1.0 - h**2)[:, None] * (w.astype(np.float64) @ jac)
+            return self.weights[-1].astype(np.float64) @ jac
+
+        jac = dg(z) if self.mirror is None else 0.5 * (dg(z) - dg(z * self.mirror) * self.mirror[None, :])
+        return jac / self.std.astype(np.float64)[None, :]
 
 
 class DistilledPolicy:
@@ -98,6 +132,10 @@ class DistilledPolicy:
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         self.frames.reset(n_envs, rows)
 
+    def steady_action(self, y: np.ndarray) -> np.ndarray:
+        """The command it holds at a constant observation (the margins' operating point)."""
+        return operating_command(self, y)
+
     def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray):
         """The margins' linear model (:func:`student_controller_model`)."""
         return student_controller_model(self, y0)
@@ -111,36 +149,49 @@ class DistilledPolicy:
         return u
 
 
-def student_controller_model(policy: "DistilledPolicy", y0: np.ndarray, settle_steps: int = 400):
+def operating_command(policy: "DistilledPolicy", y: np.ndarray) -> np.ndarray:
+    """The command ``u0 = student(frames of [y, u0])`` the student holds at a constant observation
+    ``y`` (float64): a root, not a settling run. The student's loop through its own commands, with
+    the observation held, need not settle (in the plant the measured forces follow the commands)."""
+    from scipy.optimize import root
+
+    y = np.asarray(y, dtype=np.float64).reshape(-1)
+    net, frames = policy.network, policy.frames
+
+    def gap(u: np.ndarray) -> np.ndarray:
+        return net.forward(np.tile(np.concatenate([y, u]), frames.history)[None], np.float64)[0] - u
+
+    # from rest, then from seeded random commands: Powell's hybrid method and Levenberg-Marquardt
+    # can stall on a clipped network from one start
+    starts = [np.zeros(frames.action_dim)] + list(np.random.default_rng(0).uniform(-1.0, 1.0, (16, frames.action_dim)))
+    residual, message = np.inf, ""
+    for start, method in ((x, m) for x in starts for m in ("hybr", "lm")):
+        sol = root(gap, start, method=method)
+        residual, message = float(np.max(np.abs(gap(sol.x)))), sol.message
+        if residual <= 1e-9:
+            return sol.x
+    raise ValueError(f"student {policy.name!r}: no operating command at this observation "
+                     f"(fixed-point residual {residual:.2e}: {message})")  # fmt: skip
+
+
+def student_controller_model(policy: "DistilledPolicy", y0: np.ndarray):
     """The linear model of a student at the operating observation ``y0`` (the margins' hook).
 
-    The operating command ``u0`` is where the student settles with ``y0`` held (its own commands
-    feed back through its frames). About it, the network's Jacobian on the stacked frames is a
+    The operating command ``u0`` solves ``u0 = student(frames of [y0, u0])``; the student is left
+    in that state. About it, the network's Jacobian on the stacked frames is a
     frame shift register (:func:`bogie_agents.design.linear_models.stack_model`), and the frame's
     command part is closed through one more state, the last command: ``v+ = u``. A channel at
     the clip (|u0| = 1) has zero small-signal gain."""
-    from ..design.linear_models import ControllerModel, stack_model
+    from ..design.margins import ControllerModel, stack_model
 
-    y0 = np.asarray(y0, dtype=np.float32).reshape(1, -1)
+    y0 = np.asarray(y0, dtype=np.float64).reshape(-1)
     net, frames = policy.network, policy.frames
+    u0 = operating_command(policy, y0)
     policy.reset(1)
-    u_prev = None
-    for _ in range(settle_steps):
-        u = policy.act(y0)
-        if u_prev is not None and np.max(np.abs(u - u_prev)) < 1e-7:
-            break
-        u_prev = u
-    else:
-        raise ValueError(f"student {policy.name!r}: its command does not settle at the operating observation "
-                         f"within {settle_steps} steps (last change {np.max(np.abs(u - u_prev)):.2e})")  # fmt: skip
-    x0 = frames.frames.reshape(1, -1)[0].astype(np.float64)
-    jac = np.diag(1.0 / net.std.astype(np.float64))
-    h = (x0 - net.mean) / net.std
-    for w, b in zip(net.weights[:-1], net.biases[:-1]):
-        h = np.tanh(w.astype(np.float64) @ h + b)
-        jac = (1.0 - h**2)[:, None] * (w.astype(np.float64) @ jac)
-    jac = net.weights[-1].astype(np.float64) @ jac
-    jac[np.abs(u[0]) >= 1.0] = 0.0
+    frames.frames[0] = np.tile(np.concatenate([y0, u0]), (frames.history, 1))
+    frames.last_command[0] = u0
+    jac = net.jacobian(frames.frames.reshape(-1))
+    jac[np.abs(u0) >= 1.0 - 1e-9] = 0.0
     n_y, n_u = frames.obs_dim, frames.action_dim
     inner = stack_model(jac, frames.frame_dim, frames.history, "")
     e_y = np.vstack([np.eye(n_y), np.zeros((n_u, n_y))])
@@ -148,7 +199,7 @@ def student_controller_model(policy: "DistilledPolicy", y0: np.ndarray, settle_s
     a = np.block([[inner.a, inner.b @ e_u], [inner.c, inner.d @ e_u]])
     b = np.vstack([inner.b @ e_y, inner.d @ e_y])
     c = np.hstack([inner.c, inner.d @ e_u])
-    return ControllerModel(a, b, c, inner.d @ e_y, f"distilled student: analytic Jacobian about its settled command, "
+    return ControllerModel(a, b, c, inner.d @ e_y, f"distilled student: analytic Jacobian about its operating command, "
                            f"{frames.history} frames and its last command as states")  # fmt: skip
 
 
@@ -158,6 +209,8 @@ def save_student(folder: str | Path, network: StudentNetwork, history: int, obs_
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     arrays = {"mean": network.mean, "std": network.std}
+    if network.mirror is not None:
+        arrays["mirror"] = network.mirror
     for i, (w, b) in enumerate(zip(network.weights, network.biases)):
         arrays[f"w{i}"], arrays[f"b{i}"] = w, b
     with atomic_output(folder / WEIGHTS_FILE, suffix=".npz") as tmp:
@@ -182,7 +235,8 @@ def load_student(folder: str | Path) -> DistilledPolicy:
         raise ConfigError(f"{folder / META_FILE}: 'format' = {meta.get('format')!r}; allowed: {FORMAT!r}")
     with np.load(folder / WEIGHTS_FILE, allow_pickle=False) as z:
         n = int(meta["layers"])
-        network = StudentNetwork([z[f"w{i}"] for i in range(n)], [z[f"b{i}"] for i in range(n)], z["mean"], z["std"])
+        network = StudentNetwork([z[f"w{i}"] for i in range(n)], [z[f"b{i}"] for i in range(n)], z["mean"], z["std"],
+                                 z["mirror"] if "mirror" in z.files else None)  # fmt: skip
     expected = int(meta["history"]) * (int(meta["obs_dim"]) + int(meta["action_dim"]))
     if network.weights[0].shape[1] != expected or network.mean.shape != (expected,):
         raise ConfigError(f"{folder / WEIGHTS_FILE}: the first layer takes {network.weights[0].shape[1]} inputs; "

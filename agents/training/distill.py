@@ -18,8 +18,10 @@ student that sees what a buildable controller sees (the v1 sensors and its own p
    from the last iteration's weights.
 
 ``bogie distill --config configs/agents/distill_v1.yaml --out runs/distill_v1`` writes the
-student (``student.npz``, ``student.json``) after every iteration, atomically, and a
-``progress.json`` with each iteration's figures.
+student (``student.npz``, ``student.json``) after every iteration, atomically, into ``out`` and
+into ``out/iterations/NNN`` (iteration NNN's student: students of neighbouring iterations can
+differ by hundreds of km/h in a column, so one is chosen by evaluation on validation seeds,
+``studies/distill_select.py``), and a ``progress.json`` with each iteration's figures.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import numpy as np
 from bogie_env.envs.config import make_config, merge_config
 from bogie_env.envs.registration import IDS
 from bogie_env.envs.scenario import NO_FAULT, RANGES, Scenario
-from bogie_env.envs.task import OBS_BOUND, SPEED_CENTRE_KMH, SPEED_SCALE_KMH, HuntingTask
+from bogie_env.envs.task import OBS_BOUND, SPEED_CENTRE_KMH, SPEED_SCALE_KMH, HuntingTask, speed_index
 from bogie_env.fileio import atomic_output, load_yaml, write_text_atomic
 from bogie_env.params import ConfigError
 
@@ -57,8 +59,10 @@ def default_config() -> dict[str, Any]:
         # randomize: entries merged into the env's randomisation for the bank's draws only (e.g. wider
         # degradation ranges or more failed actuators than the env's episodes draw)
         "bank": {"size": 96, "randomize": {}},
-        "student": {"history": 16, "hidden": [256, 256]},
-        "dagger": {"iterations": 6, "steps": 3000, "beta0": 1.0, "beta_decay": 0.5},
+        # mirror: the student is odd in every input but the speed (StudentNetwork); false: a plain MLP
+        "student": {"history": 16, "hidden": [256, 256], "mirror": True},
+        # keep_every: keep every k-th step's sample (neighbouring steps are nearly the same sample)
+        "dagger": {"iterations": 6, "steps": 3000, "beta0": 1.0, "beta_decay": 0.5, "keep_every": 1},
         "fit": {"epochs": 3, "batch_size": 2048, "learning_rate": 1.0e-3, "torch_threads": 2},
         "max_wall_time_s": 3600,
     }
@@ -74,6 +78,7 @@ def load_config(path: str | Path | None, overrides: Mapping[str, Any] | None = N
     for where, value, low in (("n_envs", cfg["n_envs"], 1), ("bank.size", cfg["bank"]["size"], 1),
                               ("student.history", cfg["student"]["history"], 1),
                               ("dagger.iterations", cfg["dagger"]["iterations"], 1), ("dagger.steps", cfg["dagger"]["steps"], 1),
+                              ("dagger.keep_every", cfg["dagger"]["keep_every"], 1),
                               ("fit.epochs", cfg["fit"]["epochs"], 1), ("fit.batch_size", cfg["fit"]["batch_size"], 1)):  # fmt: skip
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ConfigError(f"distill config {where!r} = {value!r}; allowed: an integer >= {low}")
@@ -223,18 +228,21 @@ class Rollouts:
         self.steps[rows] = 0
         self.by_teacher[rows] = self.rng.random(rows.size) < self.beta
 
-    def run(self, steps: int, student: StudentNetwork | None, beta: float) -> tuple[np.ndarray, np.ndarray, dict]:
-        """``steps`` env steps of every row: the student's inputs and the teacher's labels."""
+    def run(self, steps: int, student: StudentNetwork | None, beta: float, keep_every: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
+        """``steps`` env steps of every row: the student's inputs and the teacher's labels (of
+        every ``keep_every``-th step)."""
         self.beta = beta if student is not None else 1.0
         self.by_teacher[:] = self.rng.random(self.n) < self.beta
-        inputs = np.empty((steps, self.n, self.frames.history * self.frames.frame_dim), dtype=np.float32)
-        labels = np.empty((steps, self.n, self.task.action_dim), dtype=np.float32)
+        kept = -(-steps // keep_every)
+        inputs = np.empty((kept, self.n, self.frames.history * self.frames.frame_dim), dtype=np.float32)
+        labels = np.empty((kept, self.n, self.task.action_dim), dtype=np.float32)
         episodes = 0
         for t in range(steps):
             x = self.frames.push(self.task.obs)
-            inputs[t] = x
             label = self.teacher.command(state_observation(self.task))
-            labels[t] = label
+            if t % keep_every == 0:
+                inputs[t // keep_every] = x
+                labels[t // keep_every] = label
             sent = label if student is None else np.where(self.by_teacher[:, None], label, student.forward(x))
             self.task.step(sent)
             self.teacher.advance(sent)
@@ -251,8 +259,9 @@ class Rollouts:
 # ---- fitting ------------------------------------------------------------------------------------
 def fit(x: np.ndarray, y: np.ndarray, hidden: list[int], epochs: int, batch_size: int, learning_rate: float,
         seed: int, init: StudentNetwork | None = None, mean: np.ndarray | None = None, std: np.ndarray | None = None,
-        threads: int = 2) -> tuple[StudentNetwork, float]:  # fmt: skip
-    """A tanh MLP fitted to ``y`` from ``x`` (MSE, Adam); returns it and the last epoch's loss."""
+        threads: int = 2, mirror: np.ndarray | None = None) -> tuple[StudentNetwork, float]:  # fmt: skip
+    """A tanh MLP fitted to ``y`` from ``x`` (MSE, Adam), odd in the inputs ``mirror`` flips
+    (:class:`StudentNetwork`); returns it and the last epoch's loss."""
     import torch
 
     torch.set_num_threads(threads)
@@ -271,6 +280,11 @@ def fit(x: np.ndarray, y: np.ndarray, hidden: list[int], epochs: int, batch_size
                 lin.weight.copy_(torch.from_numpy(w))
                 lin.bias.copy_(torch.from_numpy(b))
     mean_t, std_t = torch.from_numpy(mean), torch.from_numpy(std)
+    mirror_t = None if mirror is None else torch.from_numpy(np.asarray(mirror, dtype=np.float32))
+
+    def student(z):
+        return net(z) if mirror_t is None else 0.5 * (net(z) - net(z * mirror_t))
+
     xt, yt = torch.from_numpy(x), torch.from_numpy(y)
     opt = torch.optim.Adam(net.parameters(), lr=learning_rate)
     gen = torch.Generator().manual_seed(seed)
@@ -280,7 +294,7 @@ def fit(x: np.ndarray, y: np.ndarray, hidden: list[int], epochs: int, batch_size
         total, count = 0.0, 0
         for start in range(0, xt.shape[0], batch_size):
             idx = order[start : start + batch_size]
-            pred = net((xt[idx] - mean_t) / std_t)
+            pred = student((xt[idx] - mean_t) / std_t)
             loss = torch.mean((pred - yt[idx]) ** 2)
             opt.zero_grad()
             loss.backward()
@@ -290,15 +304,28 @@ def fit(x: np.ndarray, y: np.ndarray, hidden: list[int], epochs: int, batch_size
         loss_value = total / count
     weights = [lin.weight.detach().numpy().copy() for lin in linears]
     biases = [lin.bias.detach().numpy().copy() for lin in linears]
-    return StudentNetwork(weights, biases, mean, std), loss_value
+    return StudentNetwork(weights, biases, mean, std, mirror), loss_value
 
 
-def frame_statistics(x: np.ndarray, history: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-entry mean and std of one frame (the same for every frame of the history), tiled."""
+def frame_statistics(x: np.ndarray, history: int, mirror: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-entry mean and std of one frame (the same for every frame of the history), tiled; the
+    mean is zero on mirrored entries (the mirror's sign flip is about zero)."""
     frames = x.reshape(x.shape[0], history, -1)[:, -1]
-    mean = frames.mean(axis=0)
+    mean, rms = frames.mean(axis=0), np.sqrt(np.mean(frames.astype(np.float64) ** 2, axis=0))
     std = np.maximum(frames.std(axis=0), 1e-3)
-    return np.tile(mean, history).astype(np.float32), np.tile(std, history).astype(np.float32)
+    mean, std, rms = np.tile(mean, history), np.tile(std, history), np.tile(np.maximum(rms, 1e-3), history)
+    if mirror is not None:  # about zero: the spread is the RMS
+        mean = np.where(mirror < 0, 0.0, mean)
+        std = np.where(mirror < 0, rms, std)
+    return mean.astype(np.float32), std.astype(np.float32)
+
+
+def mirror_signs(task: HuntingTask, history: int) -> np.ndarray:
+    """Per flat student input, -1 where mirroring the bogie about the track's centre line flips the
+    sign (the lateral and yaw sensors, actuator forces and commands), +1 for the speed."""
+    frame = -np.ones(task.observation_dim + task.action_dim, dtype=np.float32)
+    frame[speed_index(task.config["observation"]["type"])] = 1.0
+    return np.tile(frame, history)
 
 
 # ---- the command --------------------------------------------------------------------------------
@@ -317,6 +344,7 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
     bank = draw_bank(env_cfg, cfg["bank"]["size"], seed * 100_000 + 50_000, cfg["bank"]["randomize"])
     teacher = TeacherBank(env_cfg, bank, (lambda k, m: say(f"designed {k}/{m} scenarios") if k % 16 == 0 or k == m else None))
     roll = Rollouts(env_cfg, cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed, cfg["episode_steps"])
+    mirror = mirror_signs(roll.task, cfg["student"]["history"]) if cfg["student"]["mirror"] else None
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
     student: StudentNetwork | None = None
@@ -326,18 +354,19 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
     for k in range(d["iterations"]):
         beta = float(d["beta0"]) * float(d["beta_decay"]) ** k
         t_roll = time.time()
-        x, y, info = roll.run(d["steps"], student, beta)
+        x, y, info = roll.run(d["steps"], student, beta, d["keep_every"])
         t_fit = time.time()
         xs.append(x)
         ys.append(y)
         if mean is None:
-            mean, std = frame_statistics(x, cfg["student"]["history"])
+            mean, std = frame_statistics(x, cfg["student"]["history"], mirror)
         student, loss = fit(np.concatenate(xs), np.concatenate(ys), list(cfg["student"]["hidden"]), f["epochs"], f["batch_size"],
-                            f["learning_rate"], seed + k, student, mean, std, f["torch_threads"])  # fmt: skip
+                            f["learning_rate"], seed + k, student, mean, std, f["torch_threads"], mirror)  # fmt: skip
         record.append({"iteration": k, "beta": beta, "samples": int(sum(a.shape[0] for a in xs)), "episodes": info["episodes"],
                        "loss": loss, "label_variance": float(np.concatenate(ys).var(axis=0).mean()), "rollout_s": t_fit - t_roll, "fit_s": time.time() - t_fit})  # fmt: skip
-        save_student(out, student, cfg["student"]["history"], roll.task.observation_dim, roll.task.action_dim,
-                     {"env_id": cfg["env_id"], "config": cfg, "iterations_done": k + 1})  # fmt: skip
+        for folder in (out / "iterations" / f"{k + 1:03d}", out):  # every iteration's student, and the last one
+            save_student(folder, student, cfg["student"]["history"], roll.task.observation_dim, roll.task.action_dim,
+                         {"env_id": cfg["env_id"], "config": cfg, "iterations_done": k + 1})  # fmt: skip
         write_text_atomic(out / "progress.json", json.dumps({"iterations": record, "wall_time_s": time.time() - t0}, indent=1) + "\n")
         left = (time.time() - t0) / (k + 1) * (d["iterations"] - k - 1)
         say(f"iteration {k + 1}/{d['iterations']}: beta {beta:.3f}, {record[-1]['samples']} samples, loss {loss:.4g}, "
