@@ -12,8 +12,8 @@ from bogie_agents.controllers.distilled import META_FILE, DistilledPolicy, Stude
 from bogie_agents.controllers.policies import load_policy
 from bogie_agents.controllers.privileged import PrivilegedController
 from bogie_agents.design.margins import check_controller_model
-from bogie_agents.training.distill import (Rollouts, TeacherBank, distill, draw_bank, env_config, load_config, scenario_options,
-                                           state_observation)
+from bogie_agents.training.distill import (Rollouts, TeacherBank, bank_config, distill, draw_bank, env_config, frame_statistics,
+                                           load_config, mirror_signs, scenario_options, state_observation)
 from bogie_env.envs.config import merge_config
 from bogie_env.envs.task import HuntingTask
 from bogie_env.params import ConfigError
@@ -101,12 +101,18 @@ def test_student_files_are_checked(tmp_path):
     meta = json.loads((tmp_path / META_FILE).read_text())
     meta["history"] = 3
     (tmp_path / META_FILE).write_text(json.dumps(meta))
-    with pytest.raises(ConfigError, match="first layer takes 30 inputs"):
+    with pytest.raises(ConfigError, match=r"layer 0 has weights \(4, 30\)"):
+        load_student(tmp_path)
+    meta["history"], meta["layers"] = 2, 2
+    (tmp_path / META_FILE).write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match=r"arrays \['w1', 'b1'\] are missing"):
         load_student(tmp_path)
 
 
 @pytest.mark.parametrize("changes, match", [({"n_envs": 0}, "'n_envs' = 0"), ({"dagger": {"beta0": 2}}, "dagger.beta0"),
-                                            ({"dagger": {"betta": 1}}, "dagger.betta"), ({"env_id": "Bogie/Nope-v1"}, "env_id")])  # fmt: skip
+                                            ({"dagger": {"betta": 1}}, "dagger.betta"), ({"env_id": "Bogie/Nope-v1"}, "env_id"),
+                                            ({"student": {"hidden": []}}, "student.hidden"), ({"dagger": {"beta0": True}}, "dagger.beta0"),
+                                            ({"fit": {"learning_rate": -1}}, "fit.learning_rate")])  # fmt: skip
 def test_bad_config_names_the_key(changes, match):
     with pytest.raises(ConfigError, match=match):
         load_config(None, changes)
@@ -175,3 +181,65 @@ def test_a_mirrored_student_is_odd_and_its_jacobian_is_exact():
     numeric = np.stack([(net.forward((x + step * e)[None], np.float64)[0] - net.forward((x - step * e)[None], np.float64)[0])
                         / (2 * step) for e in np.eye(30)], axis=1)  # fmt: skip
     np.testing.assert_allclose(net.jacobian(x), numeric, atol=1e-7)
+
+
+def test_a_bank_with_parameter_factors_runs_the_bogie_the_teacher_is_designed_for():
+    env_cfg = env_config(_cfg())
+    bank = draw_bank(env_cfg, 2, 3, {"Csy": [0.3, 0.6]})
+    assert all(0.3 <= s.factors["Csy"] <= 0.6 for s in bank)
+    task = HuntingTask(2, bank_config(env_cfg, {"Csy": [0.3, 0.6]}))
+    task.seed_rows(np.arange(2), [11, 12])
+    for i, s in enumerate(bank):
+        task.reset_rows(np.array([i]), scenario_options(s))
+        assert task.scenarios[i].as_dict() == s.as_dict()
+
+
+def test_teacher_registers_follow_the_commands_sent_not_its_own(bank_and_teacher):
+    """Driven by random commands, the bank's labels stay those of PrivilegedControllers whose loop
+    states advance with the same commands; advanced with their own labels instead, they differ."""
+    env_cfg, bank, teacher = bank_and_teacher
+    task = HuntingTask(2, env_cfg)
+    task.seed_rows(np.arange(2), [1, 2])
+    for i, s in enumerate(bank):
+        task.reset_rows(np.array([i]), scenario_options(s))
+    controllers = [PrivilegedController(env_cfg).tell(s, env_cfg) for s in bank]
+    for c in controllers:
+        c.reset(1)
+    wrong = TeacherBank(env_cfg, bank)
+    teacher.reset(2, np.arange(2), np.arange(2))
+    wrong.reset(2, np.arange(2), np.arange(2))
+    rng = np.random.default_rng(2)
+    gap = 0.0
+    for _ in range(30):
+        obs = state_observation(task)
+        labels = teacher.command(obs)
+        expected = np.concatenate([c.command(c.state_estimate(obs[i : i + 1]), c.gain_at(c.speed_kmh(obs[i : i + 1])))
+                                   for i, c in enumerate(controllers)])  # fmt: skip
+        np.testing.assert_array_equal(labels, expected)
+        gap = max(gap, float(np.abs(wrong.command(obs) - labels).max()))
+        sent = rng.uniform(-1, 1, (2, 4))
+        task.step(sent)
+        teacher.advance(sent)
+        wrong.advance(wrong.command(obs))
+        for i, c in enumerate(controllers):
+            c.advance(sent[i : i + 1])
+    assert gap > 1e-2
+
+
+def test_keep_every_keeps_every_kth_sample_of_the_same_run(bank_and_teacher):
+    env_cfg, bank, teacher = bank_and_teacher
+    every = Rollouts(env_cfg, 2, bank, teacher, 2, seed=9).run(6, None, 1.0, keep_every=1)
+    second = Rollouts(env_cfg, 2, bank, teacher, 2, seed=9).run(6, None, 1.0, keep_every=2)
+    for a, b in zip(every[:2], second[:2]):
+        np.testing.assert_array_equal(a.reshape(6, 2, -1)[::2], b.reshape(3, 2, -1))
+
+
+def test_mirror_signs_and_statistics(bank_and_teacher):
+    env_cfg, bank, teacher = bank_and_teacher
+    task = HuntingTask(1, env_cfg)
+    mirror = mirror_signs(task, 2)
+    assert mirror.shape == (30,) and np.flatnonzero(mirror > 0).tolist() == [6, 21]  # the speed entries
+    x = np.random.default_rng(0).normal(1.0, 0.5, (500, 30)).astype(np.float32)
+    mean, std = frame_statistics(x, 2, mirror)
+    assert np.all(mean[mirror < 0] == 0.0) and np.all(mean[mirror > 0] != 0.0)
+    np.testing.assert_allclose(std[0], np.sqrt(np.mean(x[:, 15].astype(float) ** 2)), rtol=1e-5)  # RMS about zero

@@ -233,12 +233,28 @@ def load_student(folder: str | Path) -> DistilledPolicy:
     meta = json.loads((folder / META_FILE).read_text())
     if meta.get("format") != FORMAT:
         raise ConfigError(f"{folder / META_FILE}: 'format' = {meta.get('format')!r}; allowed: {FORMAT!r}")
+    for key in ("history", "obs_dim", "action_dim", "layers"):
+        if isinstance(meta.get(key), bool) or not isinstance(meta.get(key), int) or meta[key] < 1:
+            raise ConfigError(f"{folder / META_FILE}: {key!r} = {meta.get(key)!r}; allowed: an integer >= 1")
+    n = meta["layers"]
+    names = ["mean", "std"] + [f"{k}{i}" for i in range(n) for k in "wb"]
     with np.load(folder / WEIGHTS_FILE, allow_pickle=False) as z:
-        n = int(meta["layers"])
+        missing = [k for k in names if k not in z.files]
+        if missing:
+            raise ConfigError(f"{folder / WEIGHTS_FILE}: arrays {missing} are missing; {META_FILE} says {n} layers")
         network = StudentNetwork([z[f"w{i}"] for i in range(n)], [z[f"b{i}"] for i in range(n)], z["mean"], z["std"],
                                  z["mirror"] if "mirror" in z.files else None)  # fmt: skip
-    expected = int(meta["history"]) * (int(meta["obs_dim"]) + int(meta["action_dim"]))
-    if network.weights[0].shape[1] != expected or network.mean.shape != (expected,):
-        raise ConfigError(f"{folder / WEIGHTS_FILE}: the first layer takes {network.weights[0].shape[1]} inputs; "
-                          f"{META_FILE} says history x frame = {expected}")  # fmt: skip
+    expected = meta["history"] * (meta["obs_dim"] + meta["action_dim"])
+    width = expected
+    for i, (w, b) in enumerate(zip(network.weights, network.biases)):
+        if w.ndim != 2 or w.shape[1] != width or b.shape != (w.shape[0],):
+            raise ConfigError(f"{folder / WEIGHTS_FILE}: layer {i} has weights {w.shape} and biases {b.shape}; "
+                              f"allowed: ({{out}}, {width}) and ({{out}},) ({META_FILE}: history x frame = {expected})")  # fmt: skip
+        width = w.shape[0]
+    if width != meta["action_dim"]:
+        raise ConfigError(f"{folder / WEIGHTS_FILE}: the last layer gives {width} commands; {META_FILE} says {meta['action_dim']}")
+    for name in ("mean", "std", "mirror"):
+        value = getattr(network, name)
+        if value is not None and value.shape != (expected,):
+            raise ConfigError(f"{folder / WEIGHTS_FILE}: {name!r} has shape {value.shape}; allowed: ({expected},)")
     return DistilledPolicy(network, meta["history"], meta["obs_dim"], meta["action_dim"], name=str(folder), meta=meta)

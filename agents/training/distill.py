@@ -8,14 +8,17 @@ student that sees what a buildable controller sees (the v1 sensors and its own p
 
 1. **Scenario bank.** ``bank.size`` scenarios drawn from the env's own randomisation
    (``Bogie/Hunting-v1``: conicity 0.025-0.3, stiffnesses, creep, dampers, axle load, actuator
-   gains, failed actuators; stuck actuators are left out, the reference does not model them),
-   the reference designed once for each. Every episode runs one of them (reset options).
-2. **Rollouts.** ``n_envs`` rows run the env's ramps. In iteration 0 the teacher drives; in
-   iteration ``k`` an episode is driven by the teacher with probability ``beta0 * beta_decay**k``,
-   else by the current student. Every step is labelled with the teacher's command in the state
-   the rollout reached, the teacher's lag and delay registers following the commands actually sent.
-3. **Fit.** The student is fitted to every label so far (mean squared error, Adam), continuing
-   from the last iteration's weights.
+   gains, failed actuators; ``bank.randomize`` may widen it; stuck actuators are left out, the
+   reference does not model them), the reference designed once for each. Every episode runs one
+   of them (reset options).
+2. **Rollouts.** ``n_envs`` rows run the configured episodes (``env.speed``: ramps or near-fixed
+   speeds; ``episode_steps`` caps them). A row's driver is drawn when an iteration starts and
+   when the row starts an episode: in iteration 0 the teacher; in iteration ``k`` the teacher
+   with probability ``beta0 * beta_decay**k``, else the current student. Every step is labelled
+   with the teacher's command in the state the rollout reached, the teacher's lag and delay
+   registers following the commands actually sent; every ``dagger.keep_every``-th step is kept.
+3. **Fit.** The student is fitted to every kept label so far (mean squared error, Adam),
+   continuing from the last iteration's weights.
 
 ``bogie distill --config configs/agents/distill_v1.yaml --out runs/distill_v1`` writes the
 student (``student.npz``, ``student.json``) after every iteration, atomically, into ``out`` and
@@ -86,8 +89,19 @@ def load_config(path: str | Path | None, overrides: Mapping[str, Any] | None = N
                                              or cfg["episode_steps"] < 1):  # fmt: skip
         raise ConfigError(f"distill config 'episode_steps' = {cfg['episode_steps']!r}; allowed: an integer >= 1 or null")
     for where, value in (("dagger.beta0", cfg["dagger"]["beta0"]), ("dagger.beta_decay", cfg["dagger"]["beta_decay"])):
-        if not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
             raise ConfigError(f"distill config {where!r} = {value!r}; allowed: a number in [0, 1]")
+    for where, value, low in (("seed", cfg["seed"], 0), ("fit.torch_threads", cfg["fit"]["torch_threads"], 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ConfigError(f"distill config {where!r} = {value!r}; allowed: an integer >= {low}")
+    for where, value in (("fit.learning_rate", cfg["fit"]["learning_rate"]), ("max_wall_time_s", cfg["max_wall_time_s"])):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"distill config {where!r} = {value!r}; allowed: a finite number > 0")
+    hidden = cfg["student"]["hidden"]
+    if not isinstance(hidden, list) or not hidden or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in hidden):
+        raise ConfigError(f"distill config 'student.hidden' = {hidden!r}; allowed: a non-empty list of layer widths >= 1")
+    if not isinstance(cfg["student"]["mirror"], bool):
+        raise ConfigError(f"distill config 'student.mirror' = {cfg['student']['mirror']!r}; allowed: true or false")
     return cfg
 
 
@@ -109,7 +123,7 @@ def _merge(base: dict, user: Mapping[str, Any], where: str) -> dict:
 def _deep_update(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict:
     """A partial env config merged into another (checked later, by ``make_config``)."""
     if not isinstance(update, Mapping):
-        raise ConfigError(f"distill config: expected a mapping of env config keys; got {update!r}")
+        raise ConfigError(f"distill config 'env' or 'bank.randomize': {update!r} is not allowed; allowed: a mapping of env config keys")
     out = copy.deepcopy(dict(base))
     for key, value in update.items():
         out[key] = _deep_update(out[key], value) if isinstance(out.get(key), Mapping) and isinstance(value, Mapping) else copy.deepcopy(value)
@@ -132,16 +146,23 @@ def scenario_options(s: Scenario) -> dict[str, Any]:
         from bogie_env.actuators import CHANNEL_NAMES
 
         options["actuator_gain"] = dict(zip(CHANNEL_NAMES, map(float, s.actuator_gain)))
+    if s.factors:  # v0-form bogie parameter factors (e.g. bank.randomize: {Csy: [0.5, 1.0]})
+        options["params"] = dict(s.factors)
     options["failed_actuator"] = s.failed_actuator or NO_FAULT
     options["stuck_actuator"] = NO_FAULT
     return options
 
 
+def bank_config(env_cfg: dict, randomize: Mapping[str, Any] | None = None) -> dict:
+    """The env config with the bank's ``randomize`` entries merged into its randomisation; the
+    rollouts run it too, so a quantity the bank does not draw is not drawn by an episode either."""
+    return merge_config(env_cfg, {"randomize": {**env_cfg["randomize"], **randomize}}) if randomize else env_cfg
+
+
 def draw_bank(env_cfg: dict, size: int, seed: int, randomize: Mapping[str, Any] | None = None) -> list[Scenario]:
-    """``size`` scenarios of the env's randomisation with ``randomize`` merged in (stuck actuators
-    left out), drawn by a task's own reset with seeds ``seed + i``."""
-    cfg = merge_config(env_cfg, {"randomize": {**env_cfg["randomize"], **randomize}}) if randomize else env_cfg
-    task = HuntingTask(size, cfg)
+    """``size`` scenarios of :func:`bank_config` (stuck actuators left out), drawn by a task's own
+    reset with seeds ``seed + i``."""
+    task = HuntingTask(size, bank_config(env_cfg, randomize))
     task.seed_rows(np.arange(size), [seed + i for i in range(size)])
     task.reset_rows(np.arange(size), {"stuck_actuator": NO_FAULT})
     return [copy.deepcopy(task.scenarios[i]) for i in range(size)]
@@ -343,7 +364,7 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
 
     bank = draw_bank(env_cfg, cfg["bank"]["size"], seed * 100_000 + 50_000, cfg["bank"]["randomize"])
     teacher = TeacherBank(env_cfg, bank, (lambda k, m: say(f"designed {k}/{m} scenarios") if k % 16 == 0 or k == m else None))
-    roll = Rollouts(env_cfg, cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed, cfg["episode_steps"])
+    roll = Rollouts(bank_config(env_cfg, cfg["bank"]["randomize"]), cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed, cfg["episode_steps"])
     mirror = mirror_signs(roll.task, cfg["student"]["history"]) if cfg["student"]["mirror"] else None
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
