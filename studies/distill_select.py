@@ -7,7 +7,8 @@ protocol, so the student is chosen by evaluation, as an RL run keeps its best ch
 iteration's student from ``--first`` on (``RUN/iterations/NNN``) runs the screening
 (``bogie evaluate --quick``: 3 seeds, 3 worst-case draws, bisection to 4 km/h) with passive, on the
 seeds from ``--seed`` (default 1000; the protocol's are 0-9). The chosen one has the highest
-screening score among those no worse than passive in any column; it is copied to ``RUN/selected``
+screening score among those no worse than passive in any column (when none is, the highest
+score, and ``selection.json`` says ``eligible: false``); it is copied to ``RUN/selected``
 and ``RUN/selection.json`` records every candidate's score and columns.
 """
 
