@@ -43,19 +43,25 @@ def test_scenario_options_reproduce_the_scenario(bank_and_teacher):
         assert task.scenarios[i].as_dict() == s.as_dict()
 
 
+def _bank_rows_and_references(task_cfg, env_cfg, bank):
+    """A task whose row i runs bank scenario i, and a PrivilegedController told each row's scenario."""
+    task = HuntingTask(len(bank), task_cfg)
+    task.seed_rows(np.arange(len(bank)), [1 + i for i in range(len(bank))])
+    for i, s in enumerate(bank):
+        task.reset_rows(np.array([i]), scenario_options(s))
+    controllers = [PrivilegedController(env_cfg).tell(s, env_cfg) for s in bank]
+    for c in controllers:
+        c.reset(1)
+    return task, controllers
+
+
 def test_teacher_bank_labels_as_the_privileged_controller_acts(bank_and_teacher):
     """Row i of the bank's teacher gives, step after step, the command of a PrivilegedController
     told row i's scenario and fed the env's own full-state observation, which the teacher's
     state_observation reproduces bit for bit from the sensor task's states."""
     env_cfg, bank, teacher = bank_and_teacher
     state_cfg = merge_config(env_cfg, {"observation": {"type": "state"}, "sensors": {"enabled": False}})
-    task = HuntingTask(2, state_cfg)
-    task.seed_rows(np.arange(2), [1, 2])
-    for i, s in enumerate(bank):
-        task.reset_rows(np.array([i]), scenario_options(s))
-    controllers = [PrivilegedController(env_cfg).tell(s, env_cfg) for s in bank]
-    for c in controllers:
-        c.reset(1)
+    task, controllers = _bank_rows_and_references(state_cfg, env_cfg, bank)
     teacher.reset(2, np.arange(2), np.arange(2))
     for _ in range(60):
         labels = teacher.command(state_observation(task))
@@ -198,13 +204,7 @@ def test_teacher_registers_follow_the_commands_sent_not_its_own(bank_and_teacher
     """Driven by random commands, the bank's labels stay those of PrivilegedControllers whose loop
     states advance with the same commands; advanced with their own labels instead, they differ."""
     env_cfg, bank, teacher = bank_and_teacher
-    task = HuntingTask(2, env_cfg)
-    task.seed_rows(np.arange(2), [1, 2])
-    for i, s in enumerate(bank):
-        task.reset_rows(np.array([i]), scenario_options(s))
-    controllers = [PrivilegedController(env_cfg).tell(s, env_cfg) for s in bank]
-    for c in controllers:
-        c.reset(1)
+    task, controllers = _bank_rows_and_references(env_cfg, env_cfg, bank)
     wrong = TeacherBank(env_cfg, bank)
     teacher.reset(2, np.arange(2), np.arange(2))
     wrong.reset(2, np.arange(2), np.arange(2))
