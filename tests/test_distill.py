@@ -124,15 +124,19 @@ def test_bad_config_names_the_key(changes, match):
         load_config(None, changes)
 
 
-@pytest.mark.slow  # 10-15 s: torch's import and fit
-def test_distill_writes_a_student_that_moves_toward_the_teacher(tmp_path):
-    cfg = _cfg(bank={"size": 2}, dagger={"iterations": 2, "steps": 150}, student={"history": 2, "hidden": [16]},
-               fit={"epochs": 20, "batch_size": 64})  # fmt: skip
+@pytest.mark.slow  # 10-30 s: torch's import and fit
+@pytest.mark.parametrize("student, penalty", [({"history": 2, "hidden": [16]}, None),
+                                              ({"history": 2, "hidden": [16], "residual": {"baseline": "robust_steering"}},
+                                               {"points": [[250.0, 0.1]], "every": 5, "horizon_log2": 8})])  # fmt: skip
+def test_distill_writes_a_student_that_moves_toward_the_teacher(tmp_path, student, penalty):
+    cfg = _cfg(bank={"size": 2}, dagger={"iterations": 2, "steps": 150}, student=student,
+               fit={"epochs": 20, "batch_size": 64, "loop_penalty": penalty})  # fmt: skip
     out = distill(cfg, tmp_path / "run", progress=False)
     progress = json.loads((out / "progress.json").read_text())["iterations"]
     assert [p["iteration"] for p in progress] == [0, 1]
     assert progress[-1]["loss"] < 0.5 * progress[-1]["label_variance"]  # it explains most of the teacher's commands
     assert load_student(out).frames.history == 2
+    assert (progress[-1]["growth_bound_max_per_s"] is None) == (penalty is None)
 
 
 def _random_student(history=4, obs_dim=11, action_dim=4, scale=0.15, seed=3):
@@ -243,3 +247,155 @@ def test_mirror_signs_and_statistics(bank_and_teacher):
     mean, std = frame_statistics(x, 2, mirror)
     assert np.all(mean[mirror < 0] == 0.0) and np.all(mean[mirror > 0] != 0.0)
     np.testing.assert_allclose(std[0], np.sqrt(np.mean(x[:, 15].astype(float) ** 2)), rtol=1e-5)  # RMS about zero
+
+
+# ---- a student on a classical baseline (student.residual) ---------------------------------------
+RESIDUAL = {"baseline": "robust_steering", "scale": 0.5}
+
+
+def _residual_student(env_cfg, history=3, seed=6, weight=0.4):
+    """A random mirror-odd correction on robust_steering (bias-free: odd with or without the mask)."""
+    from bogie_agents.controllers.distilled import ResidualFrames
+
+    frames = ResidualFrames(history, env_cfg, RESIDUAL["baseline"], RESIDUAL["scale"], 4)
+    rng = np.random.default_rng(seed)
+    n_in = history * frames.frame_dim
+    mirror = np.tile(frames.mirror_frame(), history)
+    std = np.where(mirror < 0, 1.0, 0.5).astype(np.float32)
+    network = StudentNetwork([rng.normal(0, weight, (16, n_in)), rng.normal(0, weight, (4, 16))], [np.zeros(16), np.zeros(4)],
+                             np.where(mirror < 0, 0.0, 0.2), std, mirror)  # fmt: skip
+    return DistilledPolicy(network, history, frames.obs_dim, 4, frames=frames), frames
+
+
+def test_a_residual_student_is_its_baseline_at_rest_and_not_when_the_sensors_move(bank_and_teacher):
+    from bogie_agents.controllers.classical import CLASSICAL
+
+    env_cfg = bank_and_teacher[0]
+    policy, _ = _residual_student(env_cfg)
+    baseline = CLASSICAL[RESIDUAL["baseline"]](env_cfg)
+    from bogie_env.envs import task as T
+
+    rng = np.random.default_rng(1)
+    y_rest = np.tile(rng.normal(0, 0.3, 11), (2, 1)).astype(np.float32)  # constant sensors, biases included
+    y_rest[1, T.SENSOR_FRAME_LATERAL_ACCEL] = 0.0  # the filters start with the accelerometer at rest
+    policy.reset(2)
+    baseline.reset(2)
+    for _ in range(5):
+        np.testing.assert_array_equal(policy.act(y_rest)[1], baseline.act(y_rest)[1])
+    for _ in range(1000):  # an accelerometer bias washes out (0.5 Hz)
+        u, u_base = policy.act(y_rest), baseline.act(y_rest)
+    np.testing.assert_allclose(u, u_base, atol=1e-6)
+    moving = (y_rest + rng.normal(0, 0.3, (2, 11))).astype(np.float32)
+    assert np.abs(policy.act(moving) - baseline.act(moving)).max() > 1e-2
+
+
+def test_a_residual_student_linear_model_follows_act(bank_and_teacher):
+    """The margins' model (the baseline's model beside the correction's Jacobian on stacked
+    washed-out features) follows act; without the correction's path it does not."""
+    from bogie_agents.design.margins import controller_model
+
+    env_cfg = bank_and_teacher[0]
+    policy, frames = _residual_student(env_cfg)
+    y0 = np.zeros(11)
+    y0[6] = 0.2  # the speed entry: about 300 km/h
+    speed_kmh = float(frames.features.filters.speed_kmh(y0[None])[0])
+    ctrl = policy.controller_model(11, speed_kmh, y0)
+    u0 = policy.steady_action(y0)
+    assert check_controller_model(policy, ctrl, y0, u0, steps=12) < 2e-2
+    base_only = controller_model(frames.baseline, 11, speed_kmh, y0)
+    assert check_controller_model(policy, base_only, y0, u0, steps=12) > 0.1
+
+
+def test_residual_training_inputs_and_commands_are_the_saved_students(tmp_path, bank_and_teacher):
+    """Rollouts driven by a residual student (beta 0) send what the saved and loaded student sends
+    for the same observations, and its inputs are the student's; the fit targets are the
+    correction that the teacher's command asks for on top of the baseline's."""
+    from bogie_agents.controllers.distilled import ResidualFrames
+
+    env_cfg, bank, _ = bank_and_teacher
+    teacher = TeacherBank(env_cfg, bank)
+    policy, _ = _residual_student(env_cfg)
+    roll = Rollouts(env_cfg, 2, bank, teacher, 3, seed=5, residual=RESIDUAL)
+    observations, sent, labels = [], [], []
+    step, command = roll.task.step, teacher.command
+
+    def record_step(actions):
+        observations.append(roll.task.obs.copy())
+        sent.append(np.array(actions))
+        return step(actions)
+
+    def record_label(obs):
+        labels.append(command(obs))
+        return labels[-1]
+
+    roll.task.step, teacher.command = record_step, record_label
+    steps = 30
+    inputs, targets, _ = roll.run(steps, policy.network, beta=0.0)
+    assert not roll.task.done.any()
+    save_student(tmp_path / "s", policy.network, 3, 11, 4, {"env_id": "Bogie/Hunting-v1", "residual": {**RESIDUAL, "env_config": env_cfg}})
+    student = load_policy(str(tmp_path / "s"), env_cfg)  # plain arrays: no trust needed
+    student.reset(2)
+    fresh = ResidualFrames(3, env_cfg, RESIDUAL["baseline"], RESIDUAL["scale"], 4)
+    fresh.reset(2)
+    inputs, targets = inputs.reshape(steps, 2, -1), targets.reshape(steps, 2, -1)
+    for t in range(steps):
+        np.testing.assert_array_equal(student.act(observations[t]), sent[t])
+        x, base = fresh.inputs(observations[t])
+        np.testing.assert_array_equal(x, inputs[t])
+        np.testing.assert_allclose(targets[t], np.clip((labels[t] - base) / RESIDUAL["scale"], -1, 1), atol=1e-6)
+    assert np.abs(np.diff(np.array(sent), axis=0)).max() > 1e-2
+    assert np.abs(targets).max() > 1e-2
+
+
+def test_residual_configs_and_files_are_checked(tmp_path, bank_and_teacher):
+    with pytest.raises(ConfigError, match="student.residual.baseline"):
+        load_config(None, {"student": {"residual": {"baseline": "nope"}}})
+    with pytest.raises(ConfigError, match="student.residual.scale"):
+        load_config(None, {"student": {"residual": {"baseline": "robust_steering", "scale": 0}}})
+    with pytest.raises(ConfigError, match="'student.mirror' = false"):
+        load_config(None, {"student": {"residual": {"baseline": "robust_steering"}, "mirror": False}})
+    assert load_config(None, {"student": {"residual": {"baseline": "lqg"}}})["student"]["residual"] == {"baseline": "lqg", "scale": 1.0}
+    with pytest.raises(ConfigError, match="'fit.loop_penalty' is not allowed without 'student.residual'"):
+        load_config(None, {"fit": {"loop_penalty": {}}})
+    for bad, match in (({"gain": 0.5}, "loop_penalty.gain"), ({"points": [[300.0]]}, "loop_penalty.points"), ({"wieght": 1}, "keys")):
+        with pytest.raises(ConfigError, match=match):
+            load_config(None, {"student": {"residual": {"baseline": "lqg"}}, "fit": {"loop_penalty": bad}})
+    policy, _ = _residual_student(bank_and_teacher[0])
+    save_student(tmp_path, policy.network, 3, 11, 4, {"residual": {"baseline": "robust_steering", "scale": 2.0, "env_config": bank_and_teacher[0]}})
+    with pytest.raises(ConfigError, match=r"'residual'.scale = 2.0"):
+        load_student(tmp_path)
+
+
+def test_the_loop_penalty_is_the_margins_closed_loop(bank_and_teacher):
+    """The penalty's affine loop ``A0 + B (scale J) Phi`` of a random residual student equals the
+    closed-loop matrix that ``bogie margins`` builds from the student's own linear model, in each
+    variant (a loop gain, more delay); its growth bound is above the true growth rate and close
+    to it."""
+    import torch
+
+    from bogie_agents.design.margins import linear_loop, plant_bogie
+    from bogie_agents.training.loop_penalty import LoopPenalty, check_penalty_config
+
+    env_cfg = bank_and_teacher[0]
+    policy, frames = _residual_student(env_cfg, weight=0.6)
+    settings = check_penalty_config({"points": [[350.0, 0.1]], "stable_points": [], "gain": 2.0, "extra_delay_steps": 1, "horizon_log2": 12})
+    penalty = LoopPenalty(frames, env_cfg, settings)
+    nominal, delayed = penalty.terms
+    assert len(nominal.variants) == 5 and len(delayed.variants) == 1
+    loop = linear_loop(policy, env_cfg, 350.0, plant_bogie(env_cfg, 0.1))
+    bounds = penalty.growth_bounds_of(policy.network)
+    net = policy.network
+    linears = [type("L", (), {"weight": torch.from_numpy(w.astype(np.float64)), "bias": torch.from_numpy(b.astype(np.float64))})
+               for w, b in zip(net.weights, net.biases)]  # fmt: skip
+    j = frames.scale * penalty.jacobian(linears, torch.from_numpy(net.mean), torch.from_numpy(net.std), nominal.speed_input).numpy()
+    for terms, lp in ((nominal, loop), (delayed, loop.with_extra_delay(1))):
+        for v, gains in enumerate([np.ones(4)] + [np.where(np.arange(4) == k, 2.0, 1.0) for k in range(4)]):
+            if v >= len(terms.variants):
+                break
+            t = terms.similarity
+            a = (terms.a0[v] + terms.b[v] @ j @ terms.phi) * t[:, None] / t[None, :]  # undo the balancing
+            np.testing.assert_allclose(a, lp.closed_loop_matrix(gains), rtol=1e-9, atol=1e-9 * np.abs(lp.closed_loop_matrix(gains)).max())
+    true_growth = [loop.growth_rate(g) for g in [np.ones(4)] + [np.where(np.arange(4) == k, 2.0, 1.0) for k in range(4)]]
+    true_growth.append(loop.with_extra_delay(1).growth_rate())
+    assert np.all(bounds >= np.array(true_growth) - 1e-9)
+    assert np.all(bounds <= np.array(true_growth) + 0.5)  # balanced, 41 s horizon: the transient's share is small

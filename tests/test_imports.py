@@ -199,13 +199,13 @@ def test_a_planted_two_module_circle_across_packages_is_found(tmp_path):
 
 
 #: bogie_agents' subpackages (and its command line) -> the ones each may import (docs/extending.md,
-#: "Code layout"): design analyses controllers, evaluation runs both, training trains controllers and
-#: scores them, and only the command line (and ``__main__``, its launcher) sees everything.
+#: "Code layout"): design analyses controllers, evaluation runs both, training trains controllers
+#: (a distillation fit may hold their loops' margins: design) and scores them, and only the command line (and ``__main__``, its launcher) sees everything.
 LAYERS = {
     "controllers": set(),
     "design": {"controllers"},
     "evaluation": {"controllers", "design"},
-    "training": {"controllers", "evaluation"},
+    "training": {"controllers", "design", "evaluation"},
     "cli": {"controllers", "design", "evaluation", "training"},
     "__main__": {"cli"},
 }

@@ -12,8 +12,19 @@ plain arrays, read with ``allow_pickle=False``) and ``student.json`` (its shape,
 was trained on, the training config). Neither holds code, so loading one needs no trust
 (unlike an SB3 ``.zip``).
 
+**On a classical baseline** (``residual``): the student's output is a correction on top of a
+classical controller, ``u = clip(baseline(y) + scale * r, -1, 1)``, and ``r`` sees the last
+``history`` frames of the baseline's washed-out design signals
+(:class:`bogie_agents.controllers.residual.WashedOutFeatures`) and the speed
+(:class:`ResidualFrames`); it is fitted to ``(teacher - baseline) / scale``. The design signals
+are zero for any constant observation and the network is odd in them, so the correction is zero
+at rest and has no state of its own beyond a finite history of filtered sensors: at low
+frequency the loop is the baseline's, whose margins are designed; the student acts where the
+signals move (hunting, 1-10 Hz). A plain student's own past commands are inputs, and nothing
+holds its slow dynamics (docs/studies/distillation.md).
+
 The frames and the network are one function, :meth:`StudentNetwork.forward`, and one history
-class, :class:`FrameHistory`, used by training and evaluation alike.
+class (:class:`FrameHistory` or :class:`ResidualFrames`), used by training and evaluation alike.
 """
 
 from __future__ import annotations
@@ -66,6 +77,71 @@ class FrameHistory:
         """The commands the env was given this step (they enter the next frame)."""
         self.last_command[:] = commands
 
+    # the interface the student and the rollouts use (shared with ResidualFrames)
+    def inputs(self, obs: np.ndarray) -> tuple[np.ndarray, None]:
+        """The network's flat input for this step's observations, and no baseline command."""
+        return self.push(obs), None
+
+    @staticmethod
+    def command(output: np.ndarray, base: None) -> np.ndarray:
+        """The command sent for the network's ``output``."""
+        return output
+
+    @staticmethod
+    def target(label: np.ndarray, base: None) -> np.ndarray:
+        """What the network is fitted to for the teacher's ``label``."""
+        return label
+
+
+class ResidualFrames:
+    """A student on a classical baseline (module docstring): per row the baseline, the washed-out
+    feature filters and the last ``history`` frames ``[features, speed]``, oldest first."""
+
+    def __init__(self, history: int, env_config: dict, baseline: str, scale: float, action_dim: int) -> None:
+        from bogie_env.envs.task import speed_index
+
+        from .classical import CLASSICAL
+        from .residual import WashedOutFeatures
+
+        self.baseline_name, self.scale = baseline, float(scale)
+        self.baseline = CLASSICAL[baseline](env_config)
+        self.features = WashedOutFeatures(env_config)
+        self.obs_dim = self.features.filters.n_obs
+        self.action_dim = int(action_dim)
+        self.speed_column = speed_index(env_config["observation"]["type"])
+        self.history = int(history)
+        self.stack = FrameHistory(history, self.features.dim + 1, 0)
+
+    @property
+    def frame_dim(self) -> int:
+        return self.stack.frame_dim
+
+    def mirror_frame(self) -> np.ndarray:
+        """-1 for the features (they change sign with the mirrored bogie), +1 for the speed."""
+        return np.concatenate([-np.ones(self.features.dim), [1.0]]).astype(np.float32)
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        self.baseline.reset(n_envs, rows)
+        self.features.reset(n_envs, rows)
+        self.stack.reset(n_envs, rows)
+
+    def inputs(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        obs = np.asarray(obs, dtype=np.float32)
+        base = np.asarray(self.baseline.act(obs), dtype=np.float32)
+        frame = np.concatenate([self.features(obs), obs[:, self.speed_column : self.speed_column + 1]], axis=1)
+        return self.stack.push(frame), base
+
+    def sent(self, commands: np.ndarray) -> None:
+        """Nothing: the correction does not see its own commands."""
+
+    def command(self, output: np.ndarray, base: np.ndarray) -> np.ndarray:
+        from .residual import compose
+
+        return compose(base, output, self.scale)
+
+    def target(self, label: np.ndarray, base: np.ndarray) -> np.ndarray:
+        return np.clip((np.asarray(label, dtype=np.float64) - base) / self.scale, -1.0, 1.0).astype(np.float32)
+
 
 class StudentNetwork:
     """``u = clip(g(z), -1, 1)``, ``z = (x - mean) / std``, ``g`` a tanh MLP in numpy.
@@ -117,34 +193,53 @@ class StudentNetwork:
 
 
 class DistilledPolicy:
-    """A distilled student acting on sensor observations (module docstring)."""
+    """A distilled student acting on sensor observations (module docstring); ``frames``: a
+    :class:`ResidualFrames` for a student on a classical baseline (default: a plain
+    :class:`FrameHistory`)."""
 
     observation_type = "sensors"
     knows = "nothing"
 
     def __init__(self, network: StudentNetwork, history: int, obs_dim: int, action_dim: int, name: str = "distilled",
-                 meta: dict[str, Any] | None = None) -> None:  # fmt: skip
+                 meta: dict[str, Any] | None = None, frames: "ResidualFrames | None" = None) -> None:  # fmt: skip
         self.network = network
-        self.frames = FrameHistory(history, obs_dim, action_dim)
+        self.frames = frames if frames is not None else FrameHistory(history, obs_dim, action_dim)
         self.name = name
         self.meta = meta or {}
+
+    @property
+    def residual(self) -> bool:
+        return isinstance(self.frames, ResidualFrames)
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         self.frames.reset(n_envs, rows)
 
     def steady_action(self, y: np.ndarray) -> np.ndarray:
         """The command it holds at a constant observation (the margins' operating point)."""
-        return operating_command(self, y)
+        if not self.residual:
+            return operating_command(self, y)
+        self.reset(1)  # on a baseline: the correction is zero at rest, the baseline's filters settle
+        y32 = np.asarray(y, dtype=np.float32).reshape(1, -1)
+        u = self.act(y32)[0].astype(np.float64)
+        for _ in range(1000):
+            u_next = self.act(y32)[0].astype(np.float64)
+            if np.max(np.abs(u_next - u)) <= 1e-7:
+                break
+            u = u_next
+        return u_next
 
     def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray):
-        """The margins' linear model (:func:`student_controller_model`)."""
+        """The margins' linear model (:func:`student_controller_model`, :func:`residual_student_model`)."""
+        if self.residual:
+            return residual_student_model(self, n_obs, speed_kmh, y0)
         return student_controller_model(self, y0)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=np.float32)
         if obs.shape[-1] != self.frames.obs_dim:
             raise ConfigError(f"policy {self.name!r} takes observations of {self.frames.obs_dim} entries; got {obs.shape[-1]}")
-        u = self.network.forward(self.frames.push(obs)).astype(np.float32)
+        x, base = self.frames.inputs(obs)
+        u = self.frames.command(self.network.forward(x), base).astype(np.float32)
         self.frames.sent(u)
         return u
 
@@ -203,6 +298,38 @@ def student_controller_model(policy: "DistilledPolicy", y0: np.ndarray):
                            f"{frames.history} frames and its last command as states")  # fmt: skip
 
 
+def feature_frame_model(frames: ResidualFrames, n_obs: int, speed_kmh: float):
+    """The newest frame ``[features, speed]`` as a linear model of the observation at a fixed
+    speed (the feature filters' states; no clip)."""
+    from ..design.margins import ControllerModel
+
+    a, b, c, d = frames.features.linear_map(speed_kmh)
+    speed_row = np.zeros((1, n_obs))
+    speed_row[0, frames.speed_column] = 1.0
+    return ControllerModel(a, b, np.vstack([c, np.zeros((1, a.shape[0]))]), np.vstack([d, speed_row]), "feature filters")
+
+
+def residual_student_model(policy: DistilledPolicy, n_obs: int, speed_kmh: float, y0: np.ndarray):
+    """The linear model of a student on a baseline at the operating observation ``y0``: the
+    baseline's own model beside ``scale x J`` (``J`` the network's Jacobian on the stacked frames,
+    a shift register) fed by the feature filters at the speed; the features are zero at rest. A
+    channel whose command is clipped at ``y0`` has zero small-signal gain."""
+    from ..design.margins import ControllerModel, controller_model, parallel, series, stack_model
+
+    frames = policy.frames
+    y0 = np.asarray(y0, dtype=np.float64).reshape(-1)
+    method = (f"distilled correction on {frames.baseline_name}: its model + {frames.scale:g} x analytic Jacobian on "
+              f"{frames.history} frames of washed-out features and the speed")  # fmt: skip
+    base = controller_model(frames.baseline, n_obs, speed_kmh, y0)
+    u0 = policy.steady_action(y0)
+    features = feature_frame_model(frames, n_obs, speed_kmh)
+    x0 = np.tile(np.concatenate([np.zeros(frames.features.dim), [y0[frames.speed_column]]]), frames.history)
+    inner = stack_model(frames.scale * policy.network.jacobian(x0), frames.frame_dim, frames.history, method)
+    total = parallel(base, series(features, inner, method), method)
+    live = (np.abs(u0) < 1.0 - 1e-9).astype(np.float64)[:, None]
+    return ControllerModel(total.a, total.b, live * total.c, live * total.d, method)
+
+
 def save_student(folder: str | Path, network: StudentNetwork, history: int, obs_dim: int, action_dim: int,
                  meta: dict[str, Any]) -> Path:  # fmt: skip
     """Write ``student.npz`` and ``student.json`` into ``folder`` atomically."""
@@ -236,6 +363,9 @@ def load_student(folder: str | Path) -> DistilledPolicy:
     for key in ("history", "obs_dim", "action_dim", "layers"):
         if isinstance(meta.get(key), bool) or not isinstance(meta.get(key), int) or meta[key] < 1:
             raise ConfigError(f"{folder / META_FILE}: {key!r} = {meta.get(key)!r}; allowed: an integer >= 1")
+    frames = None
+    if meta.get("residual") is not None:
+        frames = residual_frames(meta, folder)
     n = meta["layers"]
     names = ["mean", "std"] + [f"{k}{i}" for i in range(n) for k in "wb"]
     with np.load(folder / WEIGHTS_FILE, allow_pickle=False) as z:
@@ -244,7 +374,7 @@ def load_student(folder: str | Path) -> DistilledPolicy:
             raise ConfigError(f"{folder / WEIGHTS_FILE}: arrays {missing} are missing; {META_FILE} says {n} layers")
         network = StudentNetwork([z[f"w{i}"] for i in range(n)], [z[f"b{i}"] for i in range(n)], z["mean"], z["std"],
                                  z["mirror"] if "mirror" in z.files else None)  # fmt: skip
-    expected = meta["history"] * (meta["obs_dim"] + meta["action_dim"])
+    expected = meta["history"] * (frames.frame_dim if frames is not None else meta["obs_dim"] + meta["action_dim"])
     width = expected
     for i, (w, b) in enumerate(zip(network.weights, network.biases)):
         if w.ndim != 2 or w.shape[1] != width or b.shape != (w.shape[0],):
@@ -257,4 +387,28 @@ def load_student(folder: str | Path) -> DistilledPolicy:
         value = getattr(network, name)
         if value is not None and value.shape != (expected,):
             raise ConfigError(f"{folder / WEIGHTS_FILE}: {name!r} has shape {value.shape}; allowed: ({expected},)")
-    return DistilledPolicy(network, meta["history"], meta["obs_dim"], meta["action_dim"], name=str(folder), meta=meta)
+    return DistilledPolicy(network, meta["history"], meta["obs_dim"], meta["action_dim"], name=str(folder), meta=meta, frames=frames)
+
+
+def residual_frames(meta: dict[str, Any], folder: Path | str = "student") -> ResidualFrames:
+    """The :class:`ResidualFrames` a student file's ``residual`` (``{"baseline", "scale",
+    "env_config"}``: the classical controller's name, the correction's authority and the env
+    config the baseline is designed for) describes, checked by name."""
+    from bogie_env.envs.config import make_config
+
+    from .classical import CLASSICAL
+
+    residual = meta["residual"]
+    where = f"{Path(folder) / META_FILE}: 'residual'"
+    if not isinstance(residual, dict) or set(residual) != {"baseline", "scale", "env_config"}:
+        raise ConfigError(f"{where} = {residual!r}; allowed: a mapping with 'baseline', 'scale' and 'env_config'")
+    if residual["baseline"] not in CLASSICAL:
+        raise ConfigError(f"{where}.baseline = {residual['baseline']!r}; allowed: one of {', '.join(CLASSICAL)}")
+    scale = residual["scale"]
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= 1.0:
+        raise ConfigError(f"{where}.scale = {scale!r}; allowed: a number in (0, 1]")
+    env_config = make_config(residual["env_config"])
+    frames = ResidualFrames(meta["history"], env_config, residual["baseline"], scale, meta["action_dim"])
+    if frames.obs_dim != meta["obs_dim"]:
+        raise ConfigError(f"{where}.env_config gives observations of {frames.obs_dim} entries; 'obs_dim' = {meta['obs_dim']}")
+    return frames

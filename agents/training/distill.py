@@ -45,7 +45,7 @@ from bogie_env.envs.task import OBS_BOUND, SPEED_CENTRE_KMH, SPEED_SCALE_KMH, Hu
 from bogie_env.fileio import atomic_output, load_yaml, write_text_atomic
 from bogie_env.params import ConfigError
 
-from ..controllers.distilled import FrameHistory, StudentNetwork, save_student
+from ..controllers.distilled import FrameHistory, ResidualFrames, StudentNetwork, save_student
 from ..controllers.lqr import interpolation_weights
 from ..controllers.privileged import PrivilegedController
 
@@ -62,11 +62,14 @@ def default_config() -> dict[str, Any]:
         # randomize: entries merged into the env's randomisation for the bank's draws only (e.g. wider
         # degradation ranges or more failed actuators than the env's episodes draw)
         "bank": {"size": 96, "randomize": {}},
-        # mirror: the student is odd in every input but the speed (StudentNetwork); false: a plain MLP
-        "student": {"history": 16, "hidden": [256, 256], "mirror": True},
+        # mirror: the student is odd in every input but the speed (StudentNetwork); false: a plain MLP.
+        # residual: null, or {baseline: a classical controller, scale: (0, 1]}: the student is a
+        # correction on that baseline from its washed-out design signals (distilled.ResidualFrames)
+        "student": {"history": 16, "hidden": [256, 256], "mirror": True, "residual": None},
         # keep_every: keep every k-th step's sample (neighbouring steps are nearly the same sample)
         "dagger": {"iterations": 6, "steps": 3000, "beta0": 1.0, "beta_decay": 0.5, "keep_every": 1},
-        "fit": {"epochs": 3, "batch_size": 2048, "learning_rate": 1.0e-3, "torch_threads": 2},
+        # loop_penalty: null, or a penalty on a residual student's linearised loops (loop_penalty.DEFAULTS)
+        "fit": {"epochs": 3, "batch_size": 2048, "learning_rate": 1.0e-3, "torch_threads": 2, "loop_penalty": None},
         "max_wall_time_s": 3600,
     }
 
@@ -102,6 +105,28 @@ def load_config(path: str | Path | None, overrides: Mapping[str, Any] | None = N
         raise ConfigError(f"distill config 'student.hidden' = {hidden!r}; allowed: a non-empty list of layer widths >= 1")
     if not isinstance(cfg["student"]["mirror"], bool):
         raise ConfigError(f"distill config 'student.mirror' = {cfg['student']['mirror']!r}; allowed: true or false")
+    residual = cfg["student"]["residual"]
+    if residual is not None:
+        from ..controllers.classical import CLASSICAL
+
+        if not isinstance(residual, Mapping) or set(residual) - {"baseline", "scale"} or "baseline" not in residual:
+            raise ConfigError(f"distill config 'student.residual' = {residual!r}; allowed: null or a mapping with "
+                              f"'baseline' (one of {', '.join(CLASSICAL)}) and 'scale' (a number in (0, 1], default 1)")  # fmt: skip
+        if residual["baseline"] not in CLASSICAL:
+            raise ConfigError(f"distill config 'student.residual.baseline' = {residual['baseline']!r}; allowed: one of {', '.join(CLASSICAL)}")
+        scale = residual.get("scale", 1.0)
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= 1.0:
+            raise ConfigError(f"distill config 'student.residual.scale' = {scale!r}; allowed: a number in (0, 1]")
+        if not cfg["student"]["mirror"]:
+            raise ConfigError("distill config 'student.mirror' = false is not allowed with 'student.residual'; allowed: true "
+                              "(the correction must be zero at rest, where its features are zero)")  # fmt: skip
+        cfg["student"]["residual"] = {"baseline": residual["baseline"], "scale": float(scale)}
+    from .loop_penalty import check_penalty_config
+
+    cfg["fit"]["loop_penalty"] = check_penalty_config(cfg["fit"]["loop_penalty"])
+    if cfg["fit"]["loop_penalty"] is not None and residual is None:
+        raise ConfigError("distill config 'fit.loop_penalty' is not allowed without 'student.residual'; allowed: null "
+                          "(the penalty's affine loop is a correction's on a baseline)")  # fmt: skip
     return cfg
 
 
@@ -111,7 +136,7 @@ def _merge(base: dict, user: Mapping[str, Any], where: str) -> dict:
         name = f"{where}{key}"
         if key not in base:
             raise ConfigError(f"distill config key {name!r} is not known; known here: {', '.join(base)}")
-        if isinstance(base[key], dict) and key not in ("env", "randomize"):
+        if isinstance(base[key], dict) and key not in ("env", "randomize", "residual", "loop_penalty"):
             if not isinstance(value, Mapping):
                 raise ConfigError(f"distill config {name!r} must be a mapping; got {value!r}")
             out[key] = _merge(base[key], value, name + ".")
@@ -222,7 +247,7 @@ class Rollouts:
     """``n_envs`` rows of the task, each episode on a bank scenario, the teacher labelling every step."""
 
     def __init__(self, env_cfg: dict, n_envs: int, bank: list[Scenario], teacher: TeacherBank, history: int, seed: int,
-                 episode_steps: int | None = None) -> None:  # fmt: skip
+                 episode_steps: int | None = None, residual: Mapping[str, Any] | None = None) -> None:  # fmt: skip
         self.task = HuntingTask(n_envs, env_cfg)
         self.n = n_envs
         self.episode_steps = episode_steps
@@ -231,7 +256,7 @@ class Rollouts:
         self.teacher = teacher
         self.rng = np.random.default_rng(seed)
         self.next_seed = seed * 1_000_003 + 1
-        self.frames = FrameHistory(history, self.task.observation_dim, self.task.action_dim)
+        self.frames = student_frames(env_cfg, history, self.task, residual)
         self.by_teacher = np.ones(n_envs, dtype=bool)
         self.teacher.reset(n_envs)
         self.frames.reset(n_envs)
@@ -251,7 +276,8 @@ class Rollouts:
 
     def run(self, steps: int, student: StudentNetwork | None, beta: float, keep_every: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
         """``steps`` env steps of every row: the student's inputs and the teacher's labels (of
-        every ``keep_every``-th step)."""
+        every ``keep_every``-th step), as the network's fit targets (on a baseline: the
+        correction the teacher's command asks for)."""
         self.beta = beta if student is not None else 1.0
         self.by_teacher[:] = self.rng.random(self.n) < self.beta
         kept = -(-steps // keep_every)
@@ -259,12 +285,12 @@ class Rollouts:
         labels = np.empty((kept, self.n, self.task.action_dim), dtype=np.float32)
         episodes = 0
         for t in range(steps):
-            x = self.frames.push(self.task.obs)
+            x, base = self.frames.inputs(self.task.obs)
             label = self.teacher.command(state_observation(self.task))
             if t % keep_every == 0:
                 inputs[t // keep_every] = x
-                labels[t // keep_every] = label
-            sent = label if student is None else np.where(self.by_teacher[:, None], label, student.forward(x))
+                labels[t // keep_every] = self.frames.target(label, base)
+            sent = label if student is None else np.where(self.by_teacher[:, None], label, self.frames.command(student.forward(x), base))
             self.task.step(sent)
             self.teacher.advance(sent)
             self.frames.sent(sent)
@@ -280,9 +306,10 @@ class Rollouts:
 # ---- fitting ------------------------------------------------------------------------------------
 def fit(x: np.ndarray, y: np.ndarray, hidden: list[int], epochs: int, batch_size: int, learning_rate: float,
         seed: int, init: StudentNetwork | None = None, mean: np.ndarray | None = None, std: np.ndarray | None = None,
-        threads: int = 2, mirror: np.ndarray | None = None) -> tuple[StudentNetwork, float]:  # fmt: skip
+        threads: int = 2, mirror: np.ndarray | None = None, penalty=None) -> tuple[StudentNetwork, float]:  # fmt: skip
     """A tanh MLP fitted to ``y`` from ``x`` (MSE, Adam), odd in the inputs ``mirror`` flips
-    (:class:`StudentNetwork`); returns it and the last epoch's loss."""
+    (:class:`StudentNetwork`), with ``penalty`` (a :class:`loop_penalty.LoopPenalty`) added on
+    every ``every``-th batch, times ``every``; returns it and the last epoch's mean squared error."""
     import torch
 
     torch.set_num_threads(threads)
@@ -313,12 +340,15 @@ def fit(x: np.ndarray, y: np.ndarray, hidden: list[int], epochs: int, batch_size
     for _ in range(epochs):
         order = torch.randperm(xt.shape[0], generator=gen)
         total, count = 0.0, 0
-        for start in range(0, xt.shape[0], batch_size):
+        for batch, start in enumerate(range(0, xt.shape[0], batch_size)):
             idx = order[start : start + batch_size]
             pred = student((xt[idx] - mean_t) / std_t)
             loss = torch.mean((pred - yt[idx]) ** 2)
+            total_loss = loss
+            if penalty is not None and batch % penalty.settings["every"] == 0:
+                total_loss = loss + penalty.settings["every"] * penalty(linears, mean_t, std_t)
             opt.zero_grad()
-            loss.backward()
+            total_loss.backward()
             opt.step()
             total += float(loss.detach()) * idx.numel()
             count += idx.numel()
@@ -341,9 +371,19 @@ def frame_statistics(x: np.ndarray, history: int, mirror: np.ndarray | None = No
     return mean.astype(np.float32), std.astype(np.float32)
 
 
-def mirror_signs(task: HuntingTask, history: int) -> np.ndarray:
+def student_frames(env_cfg: dict, history: int, task: HuntingTask, residual: Mapping[str, Any] | None = None):
+    """The student's frames: a plain :class:`FrameHistory`, or :class:`ResidualFrames` on a baseline."""
+    if residual is None:
+        return FrameHistory(history, task.observation_dim, task.action_dim)
+    return ResidualFrames(history, env_cfg, residual["baseline"], residual["scale"], task.action_dim)
+
+
+def mirror_signs(task: HuntingTask, history: int, frames=None) -> np.ndarray:
     """Per flat student input, -1 where mirroring the bogie about the track's centre line flips the
-    sign (the lateral and yaw sensors, actuator forces and commands), +1 for the speed."""
+    sign (the lateral and yaw sensors, actuator forces and commands; a residual student's
+    features), +1 for the speed."""
+    if isinstance(frames, ResidualFrames):
+        return np.tile(frames.mirror_frame(), history)
     frame = -np.ones(task.observation_dim + task.action_dim, dtype=np.float32)
     frame[speed_index(task.config["observation"]["type"])] = 1.0
     return np.tile(frame, history)
@@ -364,8 +404,18 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
 
     bank = draw_bank(env_cfg, cfg["bank"]["size"], seed * 100_000 + 50_000, cfg["bank"]["randomize"])
     teacher = TeacherBank(env_cfg, bank, (lambda k, m: say(f"designed {k}/{m} scenarios") if k % 16 == 0 or k == m else None))
-    roll = Rollouts(bank_config(env_cfg, cfg["bank"]["randomize"]), cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed, cfg["episode_steps"])
-    mirror = mirror_signs(roll.task, cfg["student"]["history"]) if cfg["student"]["mirror"] else None
+    residual = cfg["student"]["residual"]
+    roll = Rollouts(bank_config(env_cfg, cfg["bank"]["randomize"]), cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed,
+                    cfg["episode_steps"], residual)  # fmt: skip
+    mirror = mirror_signs(roll.task, cfg["student"]["history"], roll.frames) if cfg["student"]["mirror"] else None
+    meta: dict[str, Any] = {"env_id": cfg["env_id"], "config": cfg}
+    penalty = None
+    if cfg["fit"]["loop_penalty"] is not None:
+        from .loop_penalty import LoopPenalty
+
+        penalty = LoopPenalty(roll.frames, env_cfg, cfg["fit"]["loop_penalty"], lambda k, m: say(f"linearised loop {k}/{m}"))
+    if residual is not None:  # the baseline is designed for the env config the episodes ran
+        meta["residual"] = {**residual, "env_config": env_cfg}
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
     student: StudentNetwork | None = None
@@ -382,12 +432,16 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
         if mean is None:
             mean, std = frame_statistics(x, cfg["student"]["history"], mirror)
         student, loss = fit(np.concatenate(xs), np.concatenate(ys), list(cfg["student"]["hidden"]), f["epochs"], f["batch_size"],
-                            f["learning_rate"], seed + k, student, mean, std, f["torch_threads"], mirror)  # fmt: skip
+                            f["learning_rate"], seed + k, student, mean, std, f["torch_threads"], mirror, penalty)  # fmt: skip
+        if penalty is not None:
+            growth = penalty.growth_bounds_of(student)
+            say(f"growth bounds (1/s): worst {growth.max():.2f}, over 0 in {int((growth > penalty.settings['max_growth_per_s']).sum())}/{growth.size} loops")
         record.append({"iteration": k, "beta": beta, "samples": int(sum(a.shape[0] for a in xs)), "episodes": info["episodes"],
-                       "loss": loss, "label_variance": float(np.concatenate(ys).var(axis=0).mean()), "rollout_s": t_fit - t_roll, "fit_s": time.time() - t_fit})  # fmt: skip
+                       "loss": loss, "label_variance": float(np.concatenate(ys).var(axis=0).mean()), "rollout_s": t_fit - t_roll, "fit_s": time.time() - t_fit,
+                       "growth_bound_max_per_s": None if penalty is None else float(growth.max())})  # fmt: skip
         for folder in (out / "iterations" / f"{k + 1:03d}", out):  # every iteration's student, and the last one
             save_student(folder, student, cfg["student"]["history"], roll.task.observation_dim, roll.task.action_dim,
-                         {"env_id": cfg["env_id"], "config": cfg, "iterations_done": k + 1})  # fmt: skip
+                         {**meta, "iterations_done": k + 1})  # fmt: skip
         write_text_atomic(out / "progress.json", json.dumps({"iterations": record, "wall_time_s": time.time() - t0}, indent=1) + "\n")
         left = (time.time() - t0) / (k + 1) * (d["iterations"] - k - 1)
         say(f"iteration {k + 1}/{d['iterations']}: beta {beta:.3f}, {record[-1]['samples']} samples, loss {loss:.4g}, "

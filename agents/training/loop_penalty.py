@@ -1,0 +1,237 @@
+"""A penalty on a distilled correction's linearised loops, added to the distillation fit.
+
+Behaviour cloning fits the teacher's commands where the data are (hunting, 2-8 Hz) and holds
+nothing else: a student that imitates the privileged reference well can still destabilise the
+loop's slower modes, as the distilled students of docs/studies/distillation.md do (a 1-2 Hz mode
+growing at 2-4 1/s on new wheels). The margins are a property of the linear loop, so the fit
+can be told them.
+
+For a student on a classical baseline (:class:`bogie_agents.controllers.distilled.ResidualFrames`)
+linearised at rest on straight track, the correction's features are zero there and its
+Jacobian ``J`` (n_act x history*frame) enters the closed loop affinely:
+
+    A(J) = A0 + B (scale J) Phi
+
+``A0``: the loop with the correction cut (plant, baseline, feature filters, frame register),
+balanced by a diagonal similarity (``scipy.linalg.matrix_balance``: same eigenvalues);
+``B``: the commands' input to the plant, times the loop gains of a variant; ``Phi``: the stacked
+frames (oldest first) in terms of the loop's state. ``A0``, ``B`` and ``Phi`` are built once per
+operating point by the margins' own tools (:func:`bogie_agents.design.margins.linear_loop`);
+``J`` comes from the network being fitted, by torch, so the penalty has gradients.
+
+The penalty bounds each loop's growth rate from above by Gelfand's formula,
+``sigma_K = ln ||A^K||_F / (K dt) >= ln rho(A) / dt`` (``K`` a power of two, by repeated
+squaring with normalisation), and adds ``weight x mean(relu(sigma_K - max_growth))^2`` over the
+operating points and the variants: at ``points`` the nominal loop, each loop's command times
+``gain`` (the gain-margin floor) and ``extra_delay_steps`` more delay in every channel (the
+delay-margin floor); at ``stable_points`` the nominal loop only. The bound is conservative (it never under-estimates the growth), so a loop it calls
+stable is stable; ``bogie margins`` measures the margins afterwards.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from bogie_env.params import ConfigError
+
+from ..controllers.distilled import DistilledPolicy, ResidualFrames, StudentNetwork, feature_frame_model
+from ..design.margins import linear_loop, plant_bogie
+
+#: The penalty's settings (``fit.loop_penalty`` in a distill config).
+DEFAULTS: dict[str, Any] = {
+    # (speed km/h, conicity) of each linearised loop: the margins floor's speeds on new wheels and
+    # operating speeds on conicity-0.1 wheels (issue 25)
+    "points": [[300.0, 0.025], [350.0, 0.025], [400.0, 0.025], [450.0, 0.025], [150.0, 0.1], [200.0, 0.1], [250.0, 0.1]],
+    # (speed km/h, conicity) where only the nominal loop must be stable: the worn-wheel speeds the
+    # reference reaches, and conicity 0.05, which the margin floor does not name
+    "stable_points": [[350.0, 0.05], [450.0, 0.05], [130.0, 0.2], [160.0, 0.2], [110.0, 0.3], [130.0, 0.3]],
+    "weight": 0.05,
+    "gain": 2.0,  # each loop's command times this stays stable (gain margin)
+    "extra_delay_steps": 1,  # this many more control steps of delay in every channel stay stable (delay margin)
+    "max_growth_per_s": 0.0,
+    "horizon_log2": 11,  # K = 2**11 steps (20.48 s at 100 Hz)
+    "every": 20,  # evaluated on every n-th batch (weighted by n)
+}
+
+
+def check_penalty_config(value: Any, where: str = "fit.loop_penalty") -> dict[str, Any] | None:
+    """``None`` (no penalty) or a mapping of :data:`DEFAULTS`' keys, merged into them and checked."""
+    if value is None:
+        return None
+    if not isinstance(value, dict) or set(value) - set(DEFAULTS):
+        raise ConfigError(f"distill config {where!r} = {value!r}; allowed: null or a mapping with keys {', '.join(DEFAULTS)}")
+    cfg = {**DEFAULTS, **value}
+    for key in ("points", "stable_points"):
+        points = cfg[key]
+        if (not isinstance(points, list) or (key == "points" and not points)
+                or not all(isinstance(p, (list, tuple)) and len(p) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
+                           and 0.0 < p[0] <= 700.0 and 0.0 < p[1] <= 0.5 for p in points)):  # fmt: skip
+            raise ConfigError(f"distill config '{where}.{key}' = {points!r}; allowed: a {'non-empty ' if key == 'points' else ''}"
+                              f"list of [speed km/h in (0, 700], conicity in (0, 0.5]]")  # fmt: skip
+    for key, low in (("weight", 0.0), ("gain", 1.0)):
+        v = cfg[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < low:
+            raise ConfigError(f"distill config '{where}.{key}' = {v!r}; allowed: a finite number >= {low:g}")
+    v = cfg["max_growth_per_s"]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise ConfigError(f"distill config '{where}.max_growth_per_s' = {v!r}; allowed: a finite number (1/s)")
+    for key, low, high in (("extra_delay_steps", 0, 30), ("horizon_log2", 1, 16), ("every", 1, 10_000)):
+        v = cfg[key]
+        if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
+            raise ConfigError(f"distill config '{where}.{key}' = {v!r}; allowed: an integer in [{low}, {high}]")
+    return cfg
+
+
+@dataclass
+class LoopTerms:
+    """One operating point's affine closed loops ``A(J) = a0[v] + b[v] (scale J) phi`` for the
+    variants ``v`` that share a plant (the nominal plant and its gain variants; the plant with
+    more delay has more states and its own terms)."""
+
+    speed_kmh: float
+    conicity: float
+    a0: np.ndarray  # (variants, n, n)
+    b: np.ndarray  # (variants, n, n_act)
+    phi: np.ndarray  # (history * frame, n)
+    speed_input: float  # the speed entry of the frame at this point (observation units)
+    dt: float
+    variants: tuple[str, ...]
+    similarity: np.ndarray  # (n,) the balancing: these matrices are the loop's in states x / similarity
+
+
+def frame_map(frames: ResidualFrames, n_obs: int, speed_kmh: float, plant_c: np.ndarray, n_base: int) -> np.ndarray:
+    """``Phi``: the stacked frames (oldest first) as a linear map of the loop state
+    ``[plant; baseline; feature filters; frame register (newest first)]`` at ``speed_kmh``."""
+    feat = feature_frame_model(frames, n_obs, speed_kmh)
+    width, history = frames.frame_dim, frames.history
+    n_f, n_reg = feat.n_states, (history - 1) * width
+    n_p = plant_c.shape[1]
+    phi = np.zeros((history * width, n_p + n_base + n_f + n_reg))
+    newest = slice((history - 1) * width, history * width)
+    phi[newest, :n_p] = feat.d @ plant_c
+    phi[newest, n_p + n_base : n_p + n_base + n_f] = feat.c
+    for j in range(1, history):  # frame history-1-j is register slot j-1
+        rows = slice((history - 1 - j) * width, (history - j) * width)
+        start = n_p + n_base + n_f + (j - 1) * width
+        phi[rows, start : start + width] = np.eye(width)
+    return phi
+
+
+def loop_terms(frames: ResidualFrames, env_config: dict, speed_kmh: float, conicity: float, gain: float,
+               extra_delay_steps: int) -> list[LoopTerms]:  # fmt: skip
+    """The affine closed loops at one operating point: the nominal loop and each channel's
+    command times ``gain`` on one plant, and ``extra_delay_steps`` more delay in every channel."""
+    n_in = frames.history * frames.frame_dim
+    probe = DistilledPolicy(StudentNetwork([np.zeros((frames.action_dim, n_in))], [np.zeros(frames.action_dim)], np.zeros(n_in),
+                                           np.ones(n_in), np.tile(frames.mirror_frame(), frames.history)),
+                            frames.history, frames.obs_dim, frames.action_dim, frames=frames)  # fmt: skip
+    loop = linear_loop(probe, env_config, speed_kmh, plant_bogie(env_config, conicity))
+    n_act, n_obs = loop.plant.n_act, loop.plant.c.shape[0]
+    n_base = loop.ctrl.n_states - feature_frame_model(frames, n_obs, speed_kmh).n_states - (frames.history - 1) * frames.frame_dim
+    speed_input = _speed_input(speed_kmh)
+    groups = [(loop, [("nominal", np.ones(n_act))] + ([(f"gain {gain:g} on channel {k}", np.where(np.arange(n_act) == k, gain, 1.0))
+                                                       for k in range(n_act)] if gain > 1.0 else []))]  # fmt: skip
+    if extra_delay_steps:
+        groups.append((loop.with_extra_delay(extra_delay_steps), [(f"{extra_delay_steps} more delay steps", np.ones(n_act))]))
+    out = []
+    for lp, variants in groups:
+        a0 = np.stack([lp.closed_loop_matrix(g) for _, g in variants])
+        b = np.stack([np.vstack([lp.plant.b * g[None, :], np.zeros((lp.ctrl.n_states, n_act))]) for _, g in variants])
+        phi = frame_map(frames, n_obs, speed_kmh, lp.plant.c, n_base)
+        # a diagonal similarity that balances the nominal loop (the states are in mixed SI units):
+        # eigenvalues unchanged, the transient of ||A^K|| and with it the bound's excess far smaller
+        _, (t, _) = scipy.linalg.matrix_balance(a0[0], permute=False, separate=True)
+        a0, b, phi = a0 * t[None, None, :] / t[None, :, None], b / t[None, :, None], phi * t[None, :]
+        out.append(LoopTerms(float(speed_kmh), float(conicity), a0, b, phi, speed_input, lp.dt, tuple(v[0] for v in variants), t))
+    return out
+
+
+def _speed_input(speed_kmh: float) -> float:
+    """The observation's speed entry at ``speed_kmh`` (the env's scaling)."""
+    from bogie_env.envs.task import SPEED_CENTRE_KMH, SPEED_SCALE_KMH
+
+    return (speed_kmh - SPEED_CENTRE_KMH) / SPEED_SCALE_KMH
+
+
+class LoopPenalty:
+    """The penalty of the module docstring for one student shape, in torch (float64)."""
+
+    def __init__(self, frames: ResidualFrames, env_config: dict, settings: dict[str, Any], progress=None) -> None:
+        import torch
+
+        self.settings = settings
+        self.scale = frames.scale
+        self.terms = []
+        points = [(p, True) for p in settings["points"]] + [(p, False) for p in settings["stable_points"]]
+        for k, ((speed, lam), margins) in enumerate(points):
+            self.terms += loop_terms(frames, env_config, float(speed), float(lam), settings["gain"] if margins else 1.0,
+                                     settings["extra_delay_steps"] if margins else 0)  # fmt: skip
+            if progress:
+                progress(k + 1, len(points))
+        self.mask = torch.from_numpy((1.0 - np.tile(frames.mirror_frame(), frames.history).astype(np.float64)) / 2.0)
+        self.speed_columns = np.flatnonzero(np.tile(frames.mirror_frame(), frames.history) > 0)
+        self._a0 = [torch.from_numpy(t.a0) for t in self.terms]
+        self._b = [torch.from_numpy(t.b) for t in self.terms]
+        self._phi = [torch.from_numpy(t.phi) for t in self.terms]
+
+    def jacobian(self, linears: list, mean, std, speed_input: float):
+        """d u / d x of the mirror-odd network ``(g(z) - g(m z)) / 2`` at the input whose features
+        are zero and whose speed entries are ``speed_input`` (torch, float64, differentiable)."""
+        import torch
+
+        x0 = torch.zeros(mean.shape[0], dtype=torch.float64)
+        x0[self.speed_columns] = speed_input
+        h = (x0 - mean.double()) / std.double()
+        jac = None
+        for i, lin in enumerate(linears):
+            w = lin.weight.double()
+            pre = h @ w.T + lin.bias.double()
+            jac = w if jac is None else w @ jac
+            if i < len(linears) - 1:
+                h = torch.tanh(pre)
+                jac = (1.0 - h**2)[:, None] * jac
+        return jac * (self.mask / std.double())[None, :]  # at m z0 = z0 the odd part keeps the features' columns
+
+    def growth_bounds(self, linears: list, mean, std):
+        """Per point and variant (in :attr:`terms` order, flat), the upper bound ``sigma_K`` on the
+        growth rate (1/s), torch."""
+        import torch
+
+        log2 = self.settings["horizon_log2"]
+        out = []
+        for t, a0, b, phi in zip(self.terms, self._a0, self._b, self._phi):
+            j = self.scale * self.jacobian(linears, mean, std, t.speed_input)
+            m = a0 + b @ (j @ phi)
+            logs = torch.zeros(m.shape[0], dtype=torch.float64)
+            for _ in range(log2):
+                m = m @ m
+                norm = torch.linalg.matrix_norm(m, dim=(-2, -1)).clamp_min(1e-300)
+                m = m / norm[:, None, None]
+                logs = 2.0 * logs + torch.log(norm)
+            out.append(logs / (2**log2 * t.dt))
+        return torch.cat(out)
+
+    def __call__(self, linears: list, mean, std):
+        import torch
+
+        excess = torch.relu(self.growth_bounds(linears, mean, std) - self.settings["max_growth_per_s"])
+        return self.settings["weight"] * torch.mean(excess**2)
+
+    def growth_bounds_of(self, network: StudentNetwork) -> np.ndarray:
+        """:meth:`growth_bounds` of a fitted numpy network (per point and variant, 1/s)."""
+        import torch
+
+        linears = [_Linear(torch.from_numpy(np.asarray(w, dtype=np.float64)), torch.from_numpy(np.asarray(b, dtype=np.float64)))
+                   for w, b in zip(network.weights, network.biases)]  # fmt: skip
+        with torch.no_grad():
+            return self.growth_bounds(linears, torch.from_numpy(network.mean), torch.from_numpy(network.std)).numpy()
+
+
+@dataclass
+class _Linear:
+    weight: Any
+    bias: Any
