@@ -399,3 +399,36 @@ def test_the_loop_penalty_is_the_margins_closed_loop(bank_and_teacher):
     true_growth.append(loop.with_extra_delay(1).growth_rate())
     assert np.all(bounds >= np.array(true_growth) - 1e-9)
     assert np.all(bounds <= np.array(true_growth) + 0.5)  # balanced, 41 s horizon: the transient's share is small
+
+
+def _select_module():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "studies" / "distill_select.py"
+    spec = importlib.util.spec_from_file_location("distill_select", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_loop_bound_selection_takes_the_last_certified_iteration(tmp_path):
+    """``--rule loop-bound``: the last iteration whose worst bound is within the limit, not the lowest bound."""
+    bounds = [2.7, -0.5, 0.1, -0.1, -0.3, 0.2]
+    (tmp_path / "progress.json").write_text(json.dumps({"iterations": [{"iteration": k, "growth_bound_max_per_s": b}
+                                                                       for k, b in enumerate(bounds)]}))  # fmt: skip
+    (tmp_path / "student.json").write_text(json.dumps({"config": {"fit": {"loop_penalty": {}}}}))
+    for k in range(1, len(bounds) + 1):
+        (tmp_path / "iterations" / f"{k:03d}").mkdir(parents=True)
+        (tmp_path / "iterations" / f"{k:03d}" / "tag").write_text(str(k))
+    select = _select_module()
+    assert select.main(["--run", str(tmp_path), "--rule", "loop-bound"]) == 0
+    assert (tmp_path / "selected" / "tag").read_text() == "5"
+    assert json.loads((tmp_path / "selection.json").read_text())["chosen"] == 5
+    # a looser limit admits the last iteration; a run without the penalty is refused by name
+    (tmp_path / "student.json").write_text(json.dumps({"config": {"fit": {"loop_penalty": {"max_growth_per_s": 0.5}}}}))
+    select.main(["--run", str(tmp_path), "--rule", "loop-bound"])
+    assert (tmp_path / "selected" / "tag").read_text() == "6"
+    (tmp_path / "student.json").write_text(json.dumps({"config": {"fit": {"loop_penalty": None}}}))
+    with pytest.raises(SystemExit, match="without fit.loop_penalty"):
+        select.main(["--run", str(tmp_path), "--rule", "loop-bound"])

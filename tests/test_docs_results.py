@@ -133,6 +133,20 @@ def test_worst_fault_and_curving_verdict_name_the_column_and_the_route():
     assert sb.curving_verdict(row) == "no: r2 (flange contact)"
 
 
+def test_a_failing_window_below_passive_is_marked_in_the_headline():
+    """A seed failing at a grid speed below the column's value does not lower the value, but where
+    passive passes that speed the headline says so; a window above passive's value is not marked."""
+    passive, active = _row("passive", 1.0), _row("a", 2.0)
+    active["actuator_failed"]["a"]["fails_below_kmh"] = {"3": [240.0, 330.0]}  # passive's "a": 250
+    active["by_conicity"]["0.1"]["fails_below_kmh"] = {"1": [120.0]}  # passive: 100, not marked
+    assert sb.fails_below_passive(active, passive) == ("failed a", 240.0)
+    assert sb.fails_below_passive(passive, passive) is None
+    table = sb.headline_table({"policies": [passive, active]})
+    assert "; § fails at 240 (failed a)" in table and "§ Below its value" in table
+    del active["actuator_failed"]["a"]["fails_below_kmh"]
+    assert sb.fails_below_passive(active, passive) is None and "§" not in sb.headline_table({"policies": [passive, active]})
+
+
 # ---- the blocks and the command -----------------------------------------------------------------
 def test_refresh_rewrites_only_the_blocks_of_its_own_file(tmp_path):
     mine, other = tmp_path / "a" / "results.json", tmp_path / "b" / "results.json"

@@ -176,9 +176,10 @@ def test_env_version_picks_the_shipped_policy():
         env_version(None, "Bogie/Hunting-v7")
     assert pretrained_dir(make_config()) == PRETRAINED_DIR / "v0"
     for folder in PRETRAINED_DIR.iterdir():  # each shipped policy says which env it was trained on
-        if folder.is_dir() and folder.name != "__pycache__":
-            config = json.loads((folder / "config.json").read_text())
-            assert config.get("env_id", "Bogie/Hunting-v0").endswith(folder.name)
+        if folder.is_dir() and folder.name != "__pycache__":  # v0, v1 (SB3 runs), distilled_v1 (a student)
+            meta = folder / "config.json" if (folder / "config.json").is_file() else folder / "student.json"
+            config = json.loads(meta.read_text())
+            assert config.get("env_id", "Bogie/Hunting-v0").endswith("-" + folder.name.rsplit("_", 1)[-1])
 
 
 def test_pretrained_v0_still_loads_for_v0_and_a_missing_version_is_named(tmp_path, monkeypatch):

@@ -12,6 +12,10 @@
   (``env_id=``, e.g. ``Bogie/Hunting-v1``) or, without one, the config's: v1 when the v1 sensor
   model is on (``sensors.enabled``), else v0 (:func:`env_version`). Each folder's
   ``config.json`` names the env id it was trained on;
+- ``distilled``: the sensor-only student shipped for the env's version
+  (``agents/pretrained/distilled_v1/``: DAgger from the privileged reference as a correction on
+  ``robust_steering``, docs/studies/distillation.md), plain arrays and JSON, checked against its
+  folder's ``SHA256SUMS`` as ``pretrained`` is;
 - a path to a training run folder (``runs/NAME``) or to an SB3 ``.zip``: the saved model and,
   if present beside it, its ``vecnormalize.json`` observation statistics.
 
@@ -38,6 +42,8 @@ from bogie_env.params import ConfigError
 from .classical import CLASSICAL
 #: The shipped policies, one folder per env version (``v0``, ``v1``).
 PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
+#: Shipped policies by name: each one's folder under :data:`PRETRAINED_DIR` for an env version.
+SHIPPED = {"pretrained": "{version}", "distilled": "distilled_{version}"}
 ALGORITHMS = ("ppo", "sac", "td3", "recurrent_ppo")
 NORMALISATION_FILE = "vecnormalize.json"
 LEGACY_NORMALISATION_FILE = "vecnormalize.pkl"
@@ -115,11 +121,12 @@ def write_manifest(folder: str | Path, names: list[str]) -> Path:
     return folder / MANIFEST_FILE
 
 
-def verify_manifest(folder: str | Path) -> list[str]:
+def verify_manifest(folder: str | Path, model_suffix: str = ".zip") -> list[str]:
     """Check every file listed in ``folder/SHA256SUMS``; returns the names checked.
 
-    The model ``.zip`` and the statistics must be listed, and no other ``.zip``/``.pkl`` may
-    sit in the folder unlisted (it could be picked up instead)."""
+    A model file (``model_suffix``: an SB3 ``.zip``, a distilled student's ``.npz``) must be
+    listed, and no other ``.zip``/``.pkl``/``.json``/``.npz`` may sit in the folder unlisted (it
+    could be picked up instead)."""
     folder = Path(folder)
     manifest = folder / MANIFEST_FILE
     if not manifest.is_file():
@@ -137,12 +144,12 @@ def verify_manifest(folder: str | Path) -> list[str]:
         if sha256_file(path) != expected:
             raise ConfigError(f"{str(path)!r} does not match its SHA-256 in {MANIFEST_FILE}: the file was changed "
                               "or damaged; refusing to load it (a policy file is code). Reinstall the package.")  # fmt: skip
-    unlisted = [p.name for p in folder.iterdir() if p.suffix in (".zip", ".pkl", ".json") and p.name not in listed]
+    unlisted = [p.name for p in folder.iterdir() if p.suffix in (".zip", ".pkl", ".json", ".npz") and p.name not in listed]
     if unlisted:
         raise ConfigError(f"{str(folder)!r} holds files not in {MANIFEST_FILE}: {', '.join(sorted(unlisted))}; "
                           "refusing to load an unverified policy")  # fmt: skip
-    if not any(name.endswith(".zip") for name in listed):
-        raise ConfigError(f"{str(manifest)!r} lists no model .zip")
+    if not any(name.endswith(model_suffix) for name in listed):
+        raise ConfigError(f"{str(manifest)!r} lists no model {model_suffix}")
     return sorted(listed)
 
 
@@ -247,7 +254,7 @@ def _find_model(path: Path) -> tuple[Path, Path | None, Path | None]:
         zip_path, folder = path, path.parent
     else:
         raise ConfigError(
-            f"policy {str(path)!r} is neither a known name ({', '.join(list(CLASSICAL) + ['pretrained'])}), "
+            f"policy {str(path)!r} is neither a known name ({', '.join(list(CLASSICAL) + list(SHIPPED))}), "
             "a training run folder, nor an SB3 .zip file"
         )
     norm = folder / NORMALISATION_FILE
@@ -360,13 +367,18 @@ def env_version(env_config: dict | None = None, env_id: str | None = None) -> st
     return "v1" if sensors.get("enabled") else "v0"
 
 
+def shipped_dir(spec: str, env_config: dict | None = None, env_id: str | None = None) -> Path:
+    """The folder of the shipped policy ``spec`` (a key of :data:`SHIPPED`) for the env's version (:func:`env_version`)."""
+    return PRETRAINED_DIR / SHIPPED[spec].format(version=env_version(env_config, env_id))
+
+
 def pretrained_dir(env_config: dict | None = None, env_id: str | None = None) -> Path:
     """The folder of the policy shipped for the env's version (:func:`env_version`)."""
-    return PRETRAINED_DIR / env_version(env_config, env_id)
+    return shipped_dir("pretrained", env_config, env_id)
 
 
 def load_policy(spec: str, env_config: dict, trusted: bool = False, env_id: str | None = None):
-    """A policy by name (a classical controller of :data:`CLASSICAL`, or pretrained) or path.
+    """A policy by name (a classical controller of :data:`CLASSICAL`, or a shipped one of :data:`SHIPPED`) or path.
 
     ``pretrained`` is the policy shipped for the env's version (``env_id``, or the config's:
     :func:`env_version`), verified against its SHA-256 manifest; a path is loaded only when
@@ -381,11 +393,21 @@ def load_policy(spec: str, env_config: dict, trusted: bool = False, env_id: str 
                               f"{', '.join(shipped) or 'none'}); train one (docs/results.md)")  # fmt: skip
         verify_manifest(folder)
         policy = load_sb3_policy(folder, trusted=True, env_config=env_config)
+    elif spec == "distilled":
+        folder = shipped_dir(spec, env_config, env_id)
+        if not folder.is_dir():
+            shipped = sorted(p.name for p in PRETRAINED_DIR.glob("distilled_*") if p.is_dir())
+            raise ConfigError(f"no distilled student for env version {env_version(env_config, env_id)!r} in {folder} "
+                              f"(shipped: {', '.join(shipped) or 'none'}); distil one (docs/studies/distillation.md)")  # fmt: skip
+        verify_manifest(folder, model_suffix=".npz")
+        from .distilled import load_student
+
+        policy = load_student(folder)
     else:
         path = Path(spec)
         if not path.exists():
             raise ConfigError(
-                f"policy {spec!r} not found: give one of {', '.join(list(CLASSICAL) + ['pretrained'])} "
+                f"policy {spec!r} not found: give one of {', '.join(list(CLASSICAL) + list(SHIPPED))} "
                 "or the path of a training run folder or SB3 .zip"
             )
         from .distilled import is_student, load_student

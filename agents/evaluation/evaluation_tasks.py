@@ -22,7 +22,7 @@ from bogie_env.distributed import ChunkStore, map_chunks, source_digest
 from ..controllers import lqr as controllers, policies
 from . import evaluate
 from .evaluate import PARTS, ProtocolSettings, evaluate_policy
-from ..controllers.policies import PRETRAINED_DIR, load_policy
+from ..controllers.policies import PRETRAINED_DIR, SHIPPED, load_policy
 
 
 def units(specs: list[str], parts: tuple[str, ...], settings: ProtocolSettings) -> list[list]:
@@ -66,8 +66,8 @@ def merge(unit_results: list[dict]) -> dict:
 
 def _fingerprint(spec: str) -> list:
     """What identifies a saved controller's files (size and time of change), for the store key."""
-    path = PRETRAINED_DIR if spec == "pretrained" else Path(spec)
-    files = sorted(path.rglob("*") if spec == "pretrained" else path.iterdir()) if path.is_dir() else \
+    path = PRETRAINED_DIR if spec in SHIPPED else Path(spec)
+    files = sorted(path.rglob("*") if spec in SHIPPED else path.iterdir()) if path.is_dir() else \
         [path] if path.is_file() else []  # fmt: skip
     return [[str(f.relative_to(path)) if path.is_dir() else f.name, f.stat().st_size, f.stat().st_mtime_ns]
             for f in files if f.is_file()]  # fmt: skip

@@ -26,7 +26,7 @@ from bogie_env.params import ConfigError
 from .tables import RAMP_DOWN_COLUMNS, RAMP_DOWN_PARTS, _at_ceiling, _fmt, v2_columns, v2_speed, v2_table  # noqa: F401 (re-exported)
 
 from .evaluate import PARTS, ProtocolSettings, _policy_config, evaluate_policy
-from ..controllers.policies import load_policy, pretrained_dir
+from ..controllers.policies import SHIPPED, load_policy, shipped_dir
 
 
 def slug(spec: str) -> str:
@@ -182,7 +182,7 @@ def run(policies: list[str], env_config: dict, out: Path, resume: bool = False, 
         result = distributed[spec] if spec in distributed else \
             evaluate_policy(load_policy(spec, env_config, trusted), env_config, settings, parts)  # fmt: skip
         result["policy"] = spec
-        folder = pretrained_dir(env_config) if spec == "pretrained" else Path(spec)
+        folder = shipped_dir(spec, env_config) if spec in SHIPPED else Path(spec)
         progress = folder / "progress.json" if folder.is_dir() else None
         if progress is not None and progress.is_file():
             result["training"] = json.loads(progress.read_text())

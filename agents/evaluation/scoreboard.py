@@ -136,6 +136,32 @@ def worst_fault(result: dict) -> tuple[str, dict] | None:
 FAULT_NAMES = {"one actuator failed (worst)": "failed actuator"}
 
 
+def _all_columns(result: dict) -> dict[str, dict]:
+    """Every critical-speed column by name, each failed actuator on its own (``failed <channel>``)."""
+    cols = {n: e for n, e in score_columns(result).items() if n != "one actuator failed (worst)"}
+    cols.update({f"failed {k}": e for k, e in (result.get("actuator_failed") or {}).items() if _is_column(e)})
+    return cols
+
+
+def fails_below_passive(result: dict, passive: dict | None) -> tuple[str, float] | None:
+    """The lowest grid speed where a seed fails (``fails_below_kmh``: a failing window below the
+    column's value, which the value does not count) that is also below passive's value in the same
+    column, with that column's name; None when there is none. Such a controller is worse than
+    passive at that speed, whatever its column's value says."""
+    if passive is None:
+        return None
+    reference = _all_columns(passive)
+    worst = None
+    for name, entry in _all_columns(result).items():
+        speeds = [v for seed in (entry.get("fails_below_kmh") or {}).values() for v in seed]
+        if name not in reference or not speeds:
+            continue
+        low = min(speeds)
+        if low < reference[name]["kmh"] and (worst is None or low < worst[1]):
+            worst = (name, float(low))
+    return worst
+
+
 def curving_verdict(result: dict) -> str:
     """"yes" when the controller is no worse than passive on every shipped route, else the
     routes and columns where it is worse; "-" without the curving part."""
@@ -192,11 +218,18 @@ def headline_table(payload: dict) -> str:
     head = ["controller", "score", "nominal", "λ 0.1", "λ 0.3", "worst fault", "gain / delay margin (ms)",
             "curving: no worse than passive"]  # fmt: skip
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    passive = _passive(rows)
+    marked = False
     for r in rows:
         fault = worst_fault(r)
         by = r.get("by_conicity") or {}
+        fault_cell = f"{_speed(fault[1])} ({fault[0]})" if fault else "-"
+        below = fails_below_passive(r, passive)
+        if below:
+            fault_cell += f"; § fails at {below[1]:.0f} ({below[0]})"
+            marked = True
         cells = [controller_label(r), score_text(table[r["policy"]]), _speed(r.get("nominal")), _speed(by.get("0.1")),
-                 _speed(by.get("0.3")), f"{_speed(fault[1])} ({fault[0]})" if fault else "-", _margins(r), curving_verdict(r)]  # fmt: skip
+                 _speed(by.get("0.3")), fault_cell, _margins(r), curving_verdict(r)]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     search = next((r["search"] for r in rows if "search" in r), None)
     notes = ["", f"Score: {SCORE_DEFINITION}."]
@@ -209,6 +242,10 @@ def headline_table(payload: dict) -> str:
                      f"(search {search['floor_kmh']:g}-{search['ceiling_kmh']:g} km/h, bisection to {search['tol_kmh']:g} km/h); "
                      f"nominal: conicity {_nominal_conicity(payload) or '-'}; worst fault: the lowest of the degraded parts, "
                      "the worst single failed actuator and the extra delay.")  # fmt: skip
+    if marked:
+        notes.append("§ Below its value, some seed fails again at this grid speed, which is below passive's critical speed "
+                     "in the same column (fails_below_kmh in results.json; a value is the top of each seed's highest passing "
+                     "range, docs/results.md 'Protocol v3'): worse than passive there.")  # fmt: skip
     notes.append("Margins: worst actuator loop over 300-500 km/h at conicity 0.025; delay margin beyond the loop's own "
                  "10 ms. Curving: the three shipped routes at their line speeds, 8 seeds. Every column: table_full.md.")  # fmt: skip
     return "\n".join(lines + notes) + "\n"
