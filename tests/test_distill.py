@@ -401,6 +401,41 @@ def test_the_loop_penalty_is_the_margins_closed_loop(bank_and_teacher):
     assert np.all(bounds <= np.array(true_growth) + 0.5)  # balanced, 41 s horizon: the transient's share is small
 
 
+def test_the_fault_points_are_the_margins_loops_with_half_the_creep_and_a_failed_channel(bank_and_teacher):
+    """At a fault point the penalty's loops are the margins' closed loop with each channel's
+    command cut and, on the scenario plant with creep_factor 0.5 (the protocol's creep -50 %), the
+    nominal command; the creep loop differs from the nominal one (the plant did change)."""
+    import torch
+
+    from bogie_agents.design.margins import linear_loop, plant_bogie
+    from bogie_agents.training.loop_penalty import LoopPenalty, check_penalty_config
+    from bogie_env.envs.config import bogie_params
+    from bogie_env.envs.scenario import Scenario, scenario_model
+
+    env_cfg = bank_and_teacher[0]
+    policy, frames = _residual_student(env_cfg, weight=0.6)
+    settings = check_penalty_config({"points": [[300.0, 0.025]], "stable_points": [], "fault_points": [[330.0, 0.025]]})
+    penalty = LoopPenalty(frames, env_cfg, settings)
+    failed, creep = penalty.terms[-2:]
+    assert failed.variants == tuple(f"channel {k} failed" for k in range(4)) and creep.variants == ("creep -50%",)
+    nominal_model = plant_bogie(env_cfg, 0.025)
+    creep_model = scenario_model(bogie_params(env_cfg), Scenario(conicity=0.025, creep_factor=0.5), nominal_model)
+    net = policy.network
+    linears = [type("L", (), {"weight": torch.from_numpy(w.astype(np.float64)), "bias": torch.from_numpy(b.astype(np.float64))})
+               for w, b in zip(net.weights, net.biases)]  # fmt: skip
+    j = frames.scale * penalty.jacobian(linears, torch.from_numpy(net.mean), torch.from_numpy(net.std), failed.speed_input).numpy()
+    cases = [(failed, v, linear_loop(policy, env_cfg, 330.0, nominal_model), np.where(np.arange(4) == v, 0.0, 1.0)) for v in range(4)]
+    cases.append((creep, 0, linear_loop(policy, env_cfg, 330.0, creep_model), np.ones(4)))
+    for terms, v, lp, gains in cases:
+        t = terms.similarity
+        a = (terms.a0[v] + terms.b[v] @ j @ terms.phi) * t[:, None] / t[None, :]
+        expected = lp.closed_loop_matrix(gains)
+        np.testing.assert_allclose(a, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+    assert not np.allclose(cases[-1][2].closed_loop_matrix(), cases[0][2].closed_loop_matrix())
+    bounds = penalty.growth_bounds_of(net)[-5:]
+    assert np.all(bounds >= np.array([lp.growth_rate(g) for _, _, lp, g in cases]) - 1e-9)
+
+
 def _select_module():
     import importlib.util
     from pathlib import Path

@@ -24,7 +24,8 @@ The penalty bounds each loop's growth rate from above by Gelfand's formula,
 squaring with normalisation), and adds ``weight x mean(relu(sigma_K - max_growth))^2`` over the
 operating points and the variants: at ``points`` the nominal loop, each loop's command times
 ``gain`` (the gain-margin floor) and ``extra_delay_steps`` more delay in every channel (the
-delay-margin floor); at ``stable_points`` the nominal loop only. The bound is conservative (it never under-estimates the growth), so a loop it calls
+delay-margin floor); at ``stable_points`` the nominal loop only; at ``fault_points`` the loop
+with half the creep and the loop with each actuator failed in turn. The bound is conservative (it never under-estimates the growth), so a loop it calls
 stable is stable; ``bogie margins`` measures the margins afterwards.
 """
 
@@ -49,6 +50,10 @@ DEFAULTS: dict[str, Any] = {
     # (speed km/h, conicity) where only the nominal loop must be stable: the worn-wheel speeds the
     # reference reaches, and conicity 0.05, which the margin floor does not name
     "stable_points": [[350.0, 0.05], [450.0, 0.05], [130.0, 0.2], [160.0, 0.2], [110.0, 0.3], [130.0, 0.3]],
+    # (speed km/h, conicity) where the nominal loop must stay stable with half the creep
+    # (``creep_factor`` 0.5, the protocol's creep -50 %) and with each actuator failed in turn (its
+    # command times 0, the protocol's failed actuators); none by default
+    "fault_points": [],
     "weight": 0.05,
     "gain": 2.0,  # each loop's command times this stays stable (gain margin)
     "extra_delay_steps": 1,  # this many more control steps of delay in every channel stay stable (delay margin)
@@ -65,7 +70,7 @@ def check_penalty_config(value: Any, where: str = "fit.loop_penalty") -> dict[st
     if not isinstance(value, dict) or set(value) - set(DEFAULTS):
         raise ConfigError(f"distill config {where!r} = {value!r}; allowed: null or a mapping with keys {', '.join(DEFAULTS)}")
     cfg = {**DEFAULTS, **value}
-    for key in ("points", "stable_points"):
+    for key in ("points", "stable_points", "fault_points"):
         points = cfg[key]
         if (not isinstance(points, list) or (key == "points" and not points)
                 or not all(isinstance(p, (list, tuple)) and len(p) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
@@ -121,22 +126,37 @@ def frame_map(frames: ResidualFrames, n_obs: int, speed_kmh: float, plant_c: np.
     return phi
 
 
-def loop_terms(frames: ResidualFrames, env_config: dict, speed_kmh: float, conicity: float, gain: float,
-               extra_delay_steps: int) -> list[LoopTerms]:  # fmt: skip
-    """The affine closed loops at one operating point: the nominal loop and each channel's
-    command times ``gain`` on one plant, and ``extra_delay_steps`` more delay in every channel."""
+def _probe(frames: ResidualFrames) -> DistilledPolicy:
+    """The student with a zero network: its linear model is the loop without the correction."""
     n_in = frames.history * frames.frame_dim
-    probe = DistilledPolicy(StudentNetwork([np.zeros((frames.action_dim, n_in))], [np.zeros(frames.action_dim)], np.zeros(n_in),
-                                           np.ones(n_in), np.tile(frames.mirror_frame(), frames.history)),
-                            frames.history, frames.obs_dim, frames.action_dim, frames=frames)  # fmt: skip
+    return DistilledPolicy(StudentNetwork([np.zeros((frames.action_dim, n_in))], [np.zeros(frames.action_dim)], np.zeros(n_in),
+                                          np.ones(n_in), np.tile(frames.mirror_frame(), frames.history)),
+                           frames.history, frames.obs_dim, frames.action_dim, frames=frames)  # fmt: skip
+
+
+def loop_terms(frames: ResidualFrames, env_config: dict, speed_kmh: float, conicity: float, gain: float,
+               extra_delay_steps: int, faults: bool = False) -> list[LoopTerms]:  # fmt: skip
+    """The affine closed loops at one operating point: the nominal loop and each channel's
+    command times ``gain`` on one plant, and ``extra_delay_steps`` more delay in every channel;
+    with ``faults`` instead each channel failed (times 0) and, on its own plant, half the creep."""
+    probe = _probe(frames)
     loop = linear_loop(probe, env_config, speed_kmh, plant_bogie(env_config, conicity))
     n_act, n_obs = loop.plant.n_act, loop.plant.c.shape[0]
     n_base = loop.ctrl.n_states - feature_frame_model(frames, n_obs, speed_kmh).n_states - (frames.history - 1) * frames.frame_dim
     speed_input = _speed_input(speed_kmh)
-    groups = [(loop, [("nominal", np.ones(n_act))] + ([(f"gain {gain:g} on channel {k}", np.where(np.arange(n_act) == k, gain, 1.0))
-                                                       for k in range(n_act)] if gain > 1.0 else []))]  # fmt: skip
-    if extra_delay_steps:
-        groups.append((loop.with_extra_delay(extra_delay_steps), [(f"{extra_delay_steps} more delay steps", np.ones(n_act))]))
+    if faults:
+        from bogie_env.envs.config import bogie_params
+        from bogie_env.envs.scenario import Scenario, scenario_model
+
+        nominal = plant_bogie(env_config, conicity)
+        creep = scenario_model(bogie_params(env_config), Scenario(conicity=conicity, creep_factor=0.5), nominal)
+        groups = [(loop, [(f"channel {k} failed", np.where(np.arange(n_act) == k, 0.0, 1.0)) for k in range(n_act)]),
+                  (linear_loop(probe, env_config, speed_kmh, creep), [("creep -50%", np.ones(n_act))])]  # fmt: skip
+    else:
+        groups = [(loop, [("nominal", np.ones(n_act))] + ([(f"gain {gain:g} on channel {k}", np.where(np.arange(n_act) == k, gain, 1.0))
+                                                           for k in range(n_act)] if gain > 1.0 else []))]  # fmt: skip
+        if extra_delay_steps:
+            groups.append((loop.with_extra_delay(extra_delay_steps), [(f"{extra_delay_steps} more delay steps", np.ones(n_act))]))
     out = []
     for lp, variants in groups:
         a0 = np.stack([lp.closed_loop_matrix(g) for _, g in variants])
@@ -166,10 +186,12 @@ class LoopPenalty:
         self.settings = settings
         self.scale = frames.scale
         self.terms = []
-        points = [(p, True) for p in settings["points"]] + [(p, False) for p in settings["stable_points"]]
-        for k, ((speed, lam), margins) in enumerate(points):
+        points = [(p, "margins") for p in settings["points"]] + [(p, "stable") for p in settings["stable_points"]] + \
+                 [(p, "faults") for p in settings["fault_points"]]  # fmt: skip
+        for k, ((speed, lam), kind) in enumerate(points):
+            margins = kind == "margins"
             self.terms += loop_terms(frames, env_config, float(speed), float(lam), settings["gain"] if margins else 1.0,
-                                     settings["extra_delay_steps"] if margins else 0)  # fmt: skip
+                                     settings["extra_delay_steps"] if margins else 0, faults=kind == "faults")  # fmt: skip
             if progress:
                 progress(k + 1, len(points))
         self.mask = torch.from_numpy((1.0 - np.tile(frames.mirror_frame(), frames.history).astype(np.float64)) / 2.0)
