@@ -417,7 +417,7 @@ def test_the_fault_points_are_the_margins_loops_with_half_the_creep_and_a_failed
     settings = check_penalty_config({"points": [[300.0, 0.025]], "stable_points": [], "fault_points": [[330.0, 0.025]]})
     penalty = LoopPenalty(frames, env_cfg, settings)
     failed, creep = penalty.terms[-2:]
-    assert failed.variants == tuple(f"channel {k} failed" for k in range(4)) and creep.variants == ("creep -50%",)
+    assert failed.variants == ("frame_lateral failed", "frame_yaw failed", "wheelset1_yaw failed", "wheelset2_yaw failed") and creep.variants == ("creep -50%",)
     nominal_model = plant_bogie(env_cfg, 0.025)
     creep_model = scenario_model(bogie_params(env_cfg), Scenario(conicity=0.025, creep_factor=0.5), nominal_model)
     net = policy.network

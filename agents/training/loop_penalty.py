@@ -150,7 +150,7 @@ def loop_terms(frames: ResidualFrames, env_config: dict, speed_kmh: float, conic
 
         nominal = plant_bogie(env_config, conicity)
         creep = scenario_model(bogie_params(env_config), Scenario(conicity=conicity, creep_factor=0.5), nominal)
-        groups = [(loop, [(f"channel {k} failed", np.where(np.arange(n_act) == k, 0.0, 1.0)) for k in range(n_act)]),
+        groups = [(loop, [(f"{loop.plant.channel_names[k]} failed", np.where(np.arange(n_act) == k, 0.0, 1.0)) for k in range(n_act)]),
                   (linear_loop(probe, env_config, speed_kmh, creep), [("creep -50%", np.ones(n_act))])]  # fmt: skip
     else:
         groups = [(loop, [("nominal", np.ones(n_act))] + ([(f"gain {gain:g} on channel {k}", np.where(np.arange(n_act) == k, gain, 1.0))
