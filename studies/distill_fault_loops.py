@@ -5,8 +5,8 @@
 For each speed, the upper bound on the growth rate (1/s) of the student's linearised loop
 (:class:`bogie_agents.training.loop_penalty.LoopPenalty`, ``fault_points``) with each actuator
 failed in turn (its command times 0) and with the Kalker coefficients halved (the protocol's
-creep -50 %). A bound above zero does not prove the loop unstable; below zero it is stable.
-``bogie margins --set f11=... `` gives the exact growth of the creep loop.
+creep -50 %), and the exact growth rate of the same loop (its largest eigenvalue). A bound above
+zero does not prove the loop unstable; below zero it is stable.
 """
 
 from __future__ import annotations
@@ -34,12 +34,11 @@ def main(argv: list[str] | None = None) -> int:
     settings = check_penalty_config({"points": [[speeds[0], args.conicity]], "stable_points": [],
                                      "fault_points": [[v, args.conicity] for v in speeds]})  # fmt: skip
     penalty = LoopPenalty(policy.frames, env_cfg, settings)
-    bounds = penalty.growth_bounds_of(policy.network)
-    rows = [(t.speed_kmh, name) for t in penalty.terms for name in t.variants]
-    skip = sum(len(t.variants) for t in penalty.terms[:2])  # the margin point's own loops
-    print(f"{folder}, conicity {args.conicity:g}: growth bound (1/s)")
-    for (speed, name), bound in list(zip(rows, bounds))[skip:]:
-        print(f"  {speed:5.0f} km/h  {name:22s} {bound:+.3f}")
+    bounds, rates = penalty.growth_bounds_of(policy.network), penalty.growth_rates_of(policy.network)
+    print(f"{folder}, conicity {args.conicity:g}: growth bound and exact growth rate (1/s)")
+    for (speed, _, kind, name), bound, rate in zip(penalty.named_rows(), bounds, rates):
+        if kind == "faults":
+            print(f"  {speed:5.0f} km/h  {name:22s} {bound:+.3f}  {rate:+.3f}")
     return 0
 
 

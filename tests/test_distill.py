@@ -432,8 +432,13 @@ def test_the_fault_points_are_the_margins_loops_with_half_the_creep_and_a_failed
         expected = lp.closed_loop_matrix(gains)
         np.testing.assert_allclose(a, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
     assert not np.allclose(cases[-1][2].closed_loop_matrix(), cases[0][2].closed_loop_matrix())
+    true_growth = np.array([lp.growth_rate(g) for _, _, lp, g in cases])
     bounds = penalty.growth_bounds_of(net)[-5:]
-    assert np.all(bounds >= np.array([lp.growth_rate(g) for _, _, lp, g in cases]) - 1e-9)
+    assert np.all(bounds >= true_growth - 1e-9)
+    # the exact rates (of the balanced matrices) are the margins' loops' growth, named by kind
+    np.testing.assert_allclose(penalty.growth_rates_of(net)[-5:], true_growth, rtol=1e-6, atol=1e-6)
+    assert [r[2:] for r in penalty.named_rows()[-5:]] == [("faults", v) for v in failed.variants + creep.variants]
+    assert {r[2] for r in penalty.named_rows()[:-5]} == {"margins"}
 
 
 def _select_module():
@@ -467,3 +472,25 @@ def test_loop_bound_selection_takes_the_last_certified_iteration(tmp_path):
     (tmp_path / "student.json").write_text(json.dumps({"config": {"fit": {"loop_penalty": None}}}))
     with pytest.raises(SystemExit, match="without fit.loop_penalty"):
         select.main(["--run", str(tmp_path), "--rule", "loop-bound"])
+
+
+def test_margins_selection_takes_the_last_iteration_that_meets_the_floors(tmp_path):
+    """``--rule margins``: checked from the last iteration back, the first that passes is chosen and
+    the earlier ones are not checked; none passing selects nothing and says so."""
+    for k in range(1, 7):
+        (tmp_path / "iterations" / f"{k:03d}").mkdir(parents=True)
+        (tmp_path / "iterations" / f"{k:03d}" / "tag").write_text(str(k))
+    select = _select_module()
+    checked = []
+
+    def figures(folder):
+        checked.append(int(folder.name))
+        point = {"conicity": 0.1, "unstable_at_kmh": [], "gain_margin": 2.5, "delay_margin_s": 0.02, "all_loops_delay_margin_s": None}
+        return {"points": [point], "fault_growth_max_per_s": -0.4, "passes": int(folder.name) in (3, 4)}
+
+    assert select.select_by_margins(tmp_path, 2, figures) == 0
+    assert checked == [6, 5, 4] and (tmp_path / "selected" / "tag").read_text() == "4"
+    assert json.loads((tmp_path / "selection.json").read_text())["chosen"] == 4
+    with pytest.raises(SystemExit, match="meets the margin floors"):
+        select.select_by_margins(tmp_path, 5, figures)
+    assert json.loads((tmp_path / "selection.json").read_text())["chosen"] is None

@@ -31,7 +31,7 @@ stable is stable; ``bogie margins`` measures the margins afterwards.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -106,6 +106,7 @@ class LoopTerms:
     dt: float
     variants: tuple[str, ...]
     similarity: np.ndarray  # (n,) the balancing: these matrices are the loop's in states x / similarity
+    kind: str = "margins"  # the settings' list of the point: margins, stable or faults
 
 
 def frame_map(frames: ResidualFrames, n_obs: int, speed_kmh: float, plant_c: np.ndarray, n_base: int) -> np.ndarray:
@@ -190,8 +191,9 @@ class LoopPenalty:
                  [(p, "faults") for p in settings["fault_points"]]  # fmt: skip
         for k, ((speed, lam), kind) in enumerate(points):
             margins = kind == "margins"
-            self.terms += loop_terms(frames, env_config, float(speed), float(lam), settings["gain"] if margins else 1.0,
-                                     settings["extra_delay_steps"] if margins else 0, faults=kind == "faults")  # fmt: skip
+            self.terms += [replace(t, kind=kind) for t in loop_terms(
+                frames, env_config, float(speed), float(lam), settings["gain"] if margins else 1.0,
+                settings["extra_delay_steps"] if margins else 0, faults=kind == "faults")]  # fmt: skip
             if progress:
                 progress(k + 1, len(points))
         self.mask = torch.from_numpy((1.0 - np.tile(frames.mirror_frame(), frames.history).astype(np.float64)) / 2.0)
@@ -247,10 +249,34 @@ class LoopPenalty:
         """:meth:`growth_bounds` of a fitted numpy network (per point and variant, 1/s)."""
         import torch
 
-        linears = [_Linear(torch.from_numpy(np.asarray(w, dtype=np.float64)), torch.from_numpy(np.asarray(b, dtype=np.float64)))
-                   for w, b in zip(network.weights, network.biases)]  # fmt: skip
         with torch.no_grad():
-            return self.growth_bounds(linears, torch.from_numpy(network.mean), torch.from_numpy(network.std)).numpy()
+            return self.growth_bounds(*_torch_network(network)).numpy()
+
+    def growth_rates_of(self, network: StudentNetwork) -> np.ndarray:
+        """The exact growth rate (1/s: largest log|eigenvalue| / dt) of each loop of
+        :meth:`growth_bounds_of`, in the same order; below zero the loop is stable."""
+        import torch
+
+        linears, mean, std = _torch_network(network)
+        out = []
+        with torch.no_grad():
+            for t, a0, b, phi in zip(self.terms, self._a0, self._b, self._phi):
+                m = (a0 + b @ (self.scale * self.jacobian(linears, mean, std, t.speed_input) @ phi)).numpy()
+                out.append(np.log(np.abs(np.linalg.eigvals(m)).max(axis=-1)) / t.dt)
+        return np.concatenate(out)
+
+    def named_rows(self) -> list[tuple[float, float, str, str]]:
+        """Per loop of :meth:`growth_bounds_of`, in order: (speed km/h, conicity, kind, variant)."""
+        return [(t.speed_kmh, t.conicity, t.kind, v) for t in self.terms for v in t.variants]
+
+
+def _torch_network(network: StudentNetwork):
+    """A fitted numpy network as :meth:`LoopPenalty.growth_bounds`' arguments (float64 torch)."""
+    import torch
+
+    linears = [_Linear(torch.from_numpy(np.asarray(w, dtype=np.float64)), torch.from_numpy(np.asarray(b, dtype=np.float64)))
+               for w, b in zip(network.weights, network.biases)]  # fmt: skip
+    return linears, torch.from_numpy(network.mean), torch.from_numpy(network.std)
 
 
 @dataclass
