@@ -113,9 +113,11 @@ def margin_figures(folder: Path) -> dict:
         out["points"].append(row)
     student = load_student(folder)
     meta = json.loads((folder / "student.json").read_text())
-    faults = ((meta["config"]["fit"].get("loop_penalty") or {}).get("fault_points") or [])
+    trained = meta["config"]["fit"].get("loop_penalty") or {}
+    faults = trained.get("fault_points") or []
     if faults and student.residual:
-        settings = check_penalty_config({"points": [faults[0]], "stable_points": [], "fault_points": faults})
+        settings = check_penalty_config({"points": [faults[0]], "stable_points": [], "fault_points": faults,
+                                         **{k: trained[k] for k in ("fault_degraded",) if k in trained}})  # fmt: skip
         penalty = LoopPenalty(student.frames, meta["residual"]["env_config"], settings)
         rates = penalty.growth_rates_of(student.network)
         worst = max(r for (_, _, kind, _), r in zip(penalty.named_rows(), rates) if kind == "faults")

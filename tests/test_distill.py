@@ -15,6 +15,7 @@ from bogie_agents.design.margins import check_controller_model
 from bogie_agents.training.distill import (Rollouts, TeacherBank, bank_config, distill, draw_bank, env_config, frame_statistics,
                                            load_config, mirror_signs, scenario_options, state_observation)
 from bogie_env.envs.config import merge_config
+from bogie_env.params import ConfigError
 from bogie_env.envs.task import HuntingTask
 from bogie_env.params import ConfigError
 
@@ -439,6 +440,40 @@ def test_the_fault_points_are_the_margins_loops_with_half_the_creep_and_a_failed
     np.testing.assert_allclose(penalty.growth_rates_of(net)[-5:], true_growth, rtol=1e-6, atol=1e-6)
     assert [r[2:] for r in penalty.named_rows()[-5:]] == [("faults", v) for v in failed.variants + creep.variants]
     assert {r[2] for r in penalty.named_rows()[:-5]} == {"margins"}
+
+
+def test_fault_degraded_adds_the_protocols_degraded_plants_by_name(bank_and_teacher):
+    """``fault_degraded`` puts each named degraded bogie of the protocol on its own plant at every
+    fault point: the Kpx -50 % loop is the margins' loop on that scenario's plant; unknown names are refused."""
+    import torch
+
+    from bogie_agents.design.margins import linear_loop, plant_bogie
+    from bogie_agents.evaluation.stability_protocol import DEGRADED
+    from bogie_agents.training.loop_penalty import LoopPenalty, check_penalty_config
+    from bogie_env.envs.config import bogie_params
+    from bogie_env.envs.scenario import Scenario, scenario_model
+
+    env_cfg = bank_and_teacher[0]
+    policy, frames = _residual_student(env_cfg, weight=0.6)
+    settings = check_penalty_config({"points": [[300.0, 0.025]], "stable_points": [], "fault_points": [[330.0, 0.025]],
+                                     "fault_degraded": ["Kpx-50%", "creep-50%"]})  # fmt: skip
+    penalty = LoopPenalty(frames, env_cfg, settings)
+    kpx, creep = penalty.terms[-2:]
+    assert kpx.variants == ("Kpx -50%",) and creep.variants == ("creep -50%",)
+    model = scenario_model(bogie_params(env_cfg), Scenario(conicity=0.025, **DEGRADED["Kpx-50%"]), plant_bogie(env_cfg, 0.025))
+    lp = linear_loop(policy, env_cfg, 330.0, model)
+    net = policy.network
+    linears = [type("L", (), {"weight": torch.from_numpy(w.astype(np.float64)), "bias": torch.from_numpy(b.astype(np.float64))})
+               for w, b in zip(net.weights, net.biases)]  # fmt: skip
+    j = frames.scale * penalty.jacobian(linears, torch.from_numpy(net.mean), torch.from_numpy(net.std), kpx.speed_input).numpy()
+    t = kpx.similarity
+    a = (kpx.a0[0] + kpx.b[0] @ j @ kpx.phi) * t[:, None] / t[None, :]
+    np.testing.assert_allclose(a, lp.closed_loop_matrix(), rtol=1e-9, atol=1e-9 * np.abs(a).max())
+    assert not np.allclose(kpx.a0[0], creep.a0[0])
+    assert not np.allclose(lp.closed_loop_matrix(), linear_loop(policy, env_cfg, 330.0, plant_bogie(env_cfg, 0.025)).closed_loop_matrix())
+    for bad in (["Kpx"], ["creep-50%", "creep-50%"], "creep-50%"):
+        with pytest.raises(ConfigError, match="fault_degraded"):
+            check_penalty_config({"fault_degraded": bad})
 
 
 def _select_module():

@@ -25,8 +25,10 @@ squaring with normalisation), and adds ``weight x mean(relu(sigma_K - max_growth
 operating points and the variants: at ``points`` the nominal loop, each loop's command times
 ``gain`` (the gain-margin floor) and ``extra_delay_steps`` more delay in every channel (the
 delay-margin floor); at ``stable_points`` the nominal loop only; at ``fault_points`` the loop
-with half the creep and the loop with each actuator failed in turn. The bound is conservative (it never under-estimates the growth), so a loop it calls
-stable is stable; ``bogie margins`` measures the margins afterwards.
+with each actuator failed in turn and the loop of each of the protocol's degraded bogies named
+in ``fault_degraded`` (default half the creep). The bound is conservative (it never
+under-estimates the growth), so a loop it calls stable is stable; ``bogie margins`` measures the
+margins afterwards.
 """
 
 from __future__ import annotations
@@ -54,6 +56,9 @@ DEFAULTS: dict[str, Any] = {
     # (``creep_factor`` 0.5, the protocol's creep -50 %) and with each actuator failed in turn (its
     # command times 0, the protocol's failed actuators); none by default
     "fault_points": [],
+    # the protocol's degraded bogies (``stability_protocol.DEGRADED``) whose nominal loop must stay
+    # stable at each fault point, each on its own plant
+    "fault_degraded": ["creep-50%"],
     "weight": 0.05,
     "gain": 2.0,  # each loop's command times this stays stable (gain margin)
     "extra_delay_steps": 1,  # this many more control steps of delay in every channel stay stable (delay margin)
@@ -81,6 +86,11 @@ def check_penalty_config(value: Any, where: str = "fit.loop_penalty") -> dict[st
         v = cfg[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < low:
             raise ConfigError(f"distill config '{where}.{key}' = {v!r}; allowed: a finite number >= {low:g}")
+    from ..evaluation.stability_protocol import DEGRADED
+
+    v = cfg["fault_degraded"]
+    if not isinstance(v, list) or not all(isinstance(name, str) and name in DEGRADED for name in v) or len(set(v)) != len(v):
+        raise ConfigError(f"distill config '{where}.fault_degraded' = {v!r}; allowed: a list of distinct names from {', '.join(DEGRADED)}")
     v = cfg["max_growth_per_s"]
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
         raise ConfigError(f"distill config '{where}.max_growth_per_s' = {v!r}; allowed: a finite number (1/s)")
@@ -136,10 +146,11 @@ def _probe(frames: ResidualFrames) -> DistilledPolicy:
 
 
 def loop_terms(frames: ResidualFrames, env_config: dict, speed_kmh: float, conicity: float, gain: float,
-               extra_delay_steps: int, faults: bool = False) -> list[LoopTerms]:  # fmt: skip
+               extra_delay_steps: int, faults: bool = False, degraded: tuple[str, ...] = ("creep-50%",)) -> list[LoopTerms]:  # fmt: skip
     """The affine closed loops at one operating point: the nominal loop and each channel's
     command times ``gain`` on one plant, and ``extra_delay_steps`` more delay in every channel;
-    with ``faults`` instead each channel failed (times 0) and, on its own plant, half the creep."""
+    with ``faults`` instead each channel failed (times 0) and, each on its own plant, the
+    ``degraded`` bogies of the protocol (default half the creep)."""
     probe = _probe(frames)
     loop = linear_loop(probe, env_config, speed_kmh, plant_bogie(env_config, conicity))
     n_act, n_obs = loop.plant.n_act, loop.plant.c.shape[0]
@@ -149,10 +160,13 @@ def loop_terms(frames: ResidualFrames, env_config: dict, speed_kmh: float, conic
         from bogie_env.envs.config import bogie_params
         from bogie_env.envs.scenario import Scenario, scenario_model
 
+        from ..evaluation.stability_protocol import DEGRADED
+
         nominal = plant_bogie(env_config, conicity)
-        creep = scenario_model(bogie_params(env_config), Scenario(conicity=conicity, creep_factor=0.5), nominal)
-        groups = [(loop, [(f"{loop.plant.channel_names[k]} failed", np.where(np.arange(n_act) == k, 0.0, 1.0)) for k in range(n_act)]),
-                  (linear_loop(probe, env_config, speed_kmh, creep), [("creep -50%", np.ones(n_act))])]  # fmt: skip
+        groups = [(loop, [(f"{loop.plant.channel_names[k]} failed", np.where(np.arange(n_act) == k, 0.0, 1.0)) for k in range(n_act)])]
+        for name in degraded:
+            plant = scenario_model(bogie_params(env_config), Scenario(conicity=conicity, **DEGRADED[name]), nominal)
+            groups.append((linear_loop(probe, env_config, speed_kmh, plant), [(name.replace("-", " -"), np.ones(n_act))]))
     else:
         groups = [(loop, [("nominal", np.ones(n_act))] + ([(f"gain {gain:g} on channel {k}", np.where(np.arange(n_act) == k, gain, 1.0))
                                                            for k in range(n_act)] if gain > 1.0 else []))]  # fmt: skip
@@ -193,7 +207,7 @@ class LoopPenalty:
             margins = kind == "margins"
             self.terms += [replace(t, kind=kind) for t in loop_terms(
                 frames, env_config, float(speed), float(lam), settings["gain"] if margins else 1.0,
-                settings["extra_delay_steps"] if margins else 0, faults=kind == "faults")]  # fmt: skip
+                settings["extra_delay_steps"] if margins else 0, faults=kind == "faults", degraded=tuple(settings["fault_degraded"]))]  # fmt: skip
             if progress:
                 progress(k + 1, len(points))
         self.mask = torch.from_numpy((1.0 - np.tile(frames.mirror_frame(), frames.history).astype(np.float64)) / 2.0)
