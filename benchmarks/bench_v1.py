@@ -17,7 +17,13 @@ at N = 4096 beside two pieces of it: the full scalar right-hand side (with both 
 contacts) and the frame's lateral equation alone (``dynamics.frame_lateral_accel``), which is
 what the observation's frame acceleration costs since it stopped evaluating the former.
 
+``--single`` times the single env of each id the way a Gymnasium user steps it
+(``bench_env.rate_single``: zero actions, resets included, best of three) beside Gymnasium's
+Pendulum-v1, raw (``env.unwrapped``) and as ``gym.make`` returns it (with Gymnasium's wrappers),
+in ``--rounds`` rounds of one process; the ratios to Pendulum-v1 of one round are the figures.
+
     python benchmarks/bench_v1.py
+    python benchmarks/bench_v1.py --single --rounds 2                       # single envs against Pendulum-v1
     python benchmarks/bench_v1.py --parts                                    # pieces of a v2 step, CPU time
     python benchmarks/bench_v1.py --cpu                                      # this tree, CPU time
     python benchmarks/bench_v1.py --cpu --trees /tmp/before . --rounds 3     # trees interleaved
@@ -32,6 +38,7 @@ import statistics
 import subprocess
 import sys
 import time
+import warnings
 
 from bench_route import make_task, steps_per_second  # the same warm-up and stepping loop
 
@@ -146,6 +153,29 @@ def cpu_main(args: argparse.Namespace) -> None:
         print(f"{tree}: {line}; {ratios}{vs}")
 
 
+def single_main(rounds: int, steps: int = 20000) -> None:
+    """The single env of v0, v1 and v2 against Pendulum-v1 (module docstring)."""
+    import gymnasium as gym
+
+    import bogie_env  # noqa: F401
+    from bench_env import rate_single
+
+    warnings.filterwarnings("ignore", category=DeprecationWarning)  # gym.make's note that -v0 and -v1 have a newer version
+    ids = ("Pendulum-v1", "Bogie/Hunting-v0", "Bogie/Hunting-v1", "Bogie/Hunting-v2")
+    print(f"load average {os.getloadavg()[0]:.2f}")
+    print(f"{'round':>5} {'id':>18} {'raw steps/s':>12} {'/ Pendulum':>10} {'made steps/s':>13} {'/ Pendulum':>10}")
+    for k in range(rounds):
+        rates = {}
+        for env_id in ids:
+            env = gym.make(env_id)
+            rates[env_id] = (rate_single(env.unwrapped, steps), rate_single(env, steps))
+            env.close()
+        raw0, made0 = rates["Pendulum-v1"]
+        for env_id, (raw, made) in rates.items():
+            print(f"{k:>5} {env_id:>18} {raw:>12.0f} {raw / raw0:>10.2f} {made:>13.0f} {made / made0:>10.2f}", flush=True)
+    print(f"load average {os.getloadavg()[0]:.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0)
@@ -156,7 +186,11 @@ def main() -> None:
     parser.add_argument("--chunks", type=int, default=7, help="--cpu: chunks per case, the best kept")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--parts", action="store_true", help="CPU time of a v2 step and two pieces of it (see the docstring)")
+    parser.add_argument("--single", action="store_true", help="single envs against Pendulum-v1 (see the docstring)")
     args = parser.parse_args()
+    if args.single:
+        single_main(args.rounds)
+        return
     if args.parts:
         print(json.dumps(step_parts(args.chunks)))
         return
