@@ -174,6 +174,40 @@ def single_main(rounds: int, steps: int = 20000) -> None:
         for env_id, (raw, made) in rates.items():
             print(f"{k:>5} {env_id:>18} {raw:>12.0f} {raw / raw0:>10.2f} {made:>13.0f} {made / made0:>10.2f}", flush=True)
     print(f"load average {os.getloadavg()[0]:.2f}")
+    print("pieces of a single Bogie/Hunting-v2 step, µs per call (best of five):", json.dumps(single_parts()))
+
+
+def single_parts(calls: int = 10000) -> dict:
+    """µs per call of the single v2 env's step and of its pieces: the task's step, the compiled
+    kernel called as the task calls it, the info dict and the observation copy."""
+    import gymnasium as gym
+    import numpy as np
+
+    from bogie_env.envs.task import _step_serial
+
+    env = gym.make("Bogie/Hunting-v2").unwrapped
+    env.reset(seed=0)
+    task, sim = env.task, env.task.sim
+    action = np.zeros(env.action_space.shape, dtype=np.float32)
+    kernel_args = (action[None, :], sim.rows, task.channels, sim._track, sim.dt, sim.n_sub, sim.stages, task.actions,
+                   task._task_rows, task.settings, task.state_scales, task.health, task.sensing)  # fmt: skip
+
+    def env_step():
+        if any(env.step(action)[2:4]):
+            env.reset()
+
+    pieces = {"env.step": env_step, "task.step": lambda: task.step(action), "kernel": lambda: _step_serial(*kernel_args),
+              "info_dict": lambda: task.info_dict(0), "obs copy": lambda: task.obs[0].copy()}  # fmt: skip
+    out = {}
+    for name, call in pieces.items():
+        best = float("inf")
+        for _ in range(5):
+            t0 = time.perf_counter()
+            for _ in range(calls):
+                call()
+            best = min(best, time.perf_counter() - t0)
+        out[name] = round(1e6 * best / calls, 2)
+    return out
 
 
 def main() -> None:
