@@ -115,9 +115,8 @@ def margin_figures(folder: Path) -> dict:
     meta = json.loads((folder / "student.json").read_text())
     trained = meta["config"]["fit"].get("loop_penalty") or {}
     faults = trained.get("fault_points") or []
-    if faults and student.residual:
-        settings = check_penalty_config({"points": [faults[0]], "stable_points": [], "fault_points": faults,
-                                         **{k: trained[k] for k in ("fault_degraded",) if k in trained}})  # fmt: skip
+    if faults and student.residual:  # the run's own fault loops (its fault_points and fault_degraded)
+        settings = check_penalty_config({**trained, "points": [faults[0]], "stable_points": []})
         penalty = LoopPenalty(student.frames, meta["residual"]["env_config"], settings)
         rates = penalty.growth_rates_of(student.network)
         worst = max(r for (_, _, kind, _), r in zip(penalty.named_rows(), rates) if kind == "faults")
@@ -127,6 +126,10 @@ def margin_figures(folder: Path) -> dict:
     return out
 
 
+def _ms(seconds: float | None) -> str:
+    return "none" if seconds is None else f"{1e3 * seconds:.1f} ms"
+
+
 def describe_margins(row: dict) -> str:
     """One line of the figures :func:`margin_figures` found, per conicity, for the log."""
     parts = []
@@ -134,9 +137,8 @@ def describe_margins(row: dict) -> str:
         if p["unstable_at_kmh"]:
             parts.append(f"λ {p['conicity']}: unstable at {p['unstable_at_kmh']} km/h")
             continue
-        ms = lambda v: "none" if v is None else f"{1e3 * v:.1f} ms"  # noqa: E731
         gain = "none" if p["gain_margin"] is None else f"{p['gain_margin']:.2f}"
-        parts.append(f"λ {p['conicity']}: gain {gain}, delay {ms(p['delay_margin_s'])} / all loops {ms(p['all_loops_delay_margin_s'])}")
+        parts.append(f"λ {p['conicity']}: gain {gain}, delay {_ms(p['delay_margin_s'])} / all loops {_ms(p['all_loops_delay_margin_s'])}")
     if row["fault_growth_max_per_s"] is not None:
         parts.append(f"fault loops' growth {row['fault_growth_max_per_s']:+.3f} 1/s")
     return "; ".join(parts)
