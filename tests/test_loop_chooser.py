@@ -63,3 +63,29 @@ def test_the_calling_thread_wins_when_the_pool_is_slow_from_the_start():
     chooser = LoopChooser(PARALLEL_MIN_ROWS, 2)
     chosen = _drive(chooser, lambda loop, _: 0.030 if loop == 1 else 0.010, 60)
     assert chosen[5:] == [0] * 55
+
+
+def test_the_packed_serial_step_is_the_unpacked_one():
+    """Below PARALLEL_MIN_ROWS the task steps through one packed argument (StepArgs); it must be
+    the same arithmetic on the same arrays as the kernel called with the arrays one by one."""
+    import numpy as np
+
+    from bogie_env.envs.config import make_config
+    from bogie_env.envs.task import HuntingTask, _step_serial
+
+    tasks = [HuntingTask(3, make_config(variant="v2")) for _ in range(2)]
+    for task in tasks:
+        task.seed_rows(np.arange(3), [1, 2, 3])
+        task.reset_rows(np.arange(3), None)
+    actions = np.random.default_rng(0).uniform(-1.2, 1.2, (40, 3, tasks[0].action_dim))
+    for a in actions:
+        tasks[0].step(a)
+        assert _step_serial(a, *tasks[1]._step_args()) == -1
+    assert tasks[0]._packed_step_args is not None
+    for name in ("x", "obs", "reward", "info", "flags"):
+        np.testing.assert_array_equal(getattr(tasks[0], name), getattr(tasks[1], name), err_msg=name)
+    for task in tasks:  # the packed arrays are the task's own, not copies
+        task.states[1] += 1e-3
+    tasks[0].step(actions[0])
+    _step_serial(actions[0], *tasks[1]._step_args())
+    np.testing.assert_array_equal(tasks[0].states, tasks[1].states)
