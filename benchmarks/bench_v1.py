@@ -17,6 +17,10 @@ at N = 4096 beside two pieces of it: the full scalar right-hand side (with both 
 contacts) and the frame's lateral equation alone (``dynamics.frame_lateral_accel``), which is
 what the observation's frame acceleration costs since it stopped evaluating the former.
 
+``--row-parts`` reports the CPU time per row at N = 4096 of v0's, v1's and v2's compiled step on
+the calling thread (run it with ``BOGIE_NUM_THREADS=1``), beside its pieces: the commands, the
+simulator's interval, the task's reward, termination and observation, and the sensor model.
+
 ``--single`` times the single env of each id the way a Gymnasium user steps it
 (``bench_env.rate_single``: zero actions, resets included) beside Gymnasium's Pendulum-v1, raw
 (``env.unwrapped``) and as ``gym.make`` returns it (with Gymnasium's wrappers), in ``--rounds``
@@ -27,6 +31,7 @@ ratios to Pendulum-v1 of one round are the figures.
     python benchmarks/bench_v1.py
     python benchmarks/bench_v1.py --single --rounds 2                       # single envs against Pendulum-v1
     python benchmarks/bench_v1.py --parts                                    # pieces of a v2 step, CPU time
+    BOGIE_NUM_THREADS=1 python benchmarks/bench_v1.py --row-parts           # pieces of each version's step, per row
     python benchmarks/bench_v1.py --cpu                                      # this tree, CPU time
     python benchmarks/bench_v1.py --cpu --trees /tmp/before . --rounds 3     # trees interleaved
 """
@@ -122,6 +127,41 @@ def step_parts(chunks: int, n: int = 4096, reps: int = 20) -> dict:
         frame_equation(x, v, q, yt, p, reps)
         figures["frame_equation_us"].append((time.process_time() - t0) / (reps * n) * 1e6)
     return {"load": os.getloadavg()[0], **{k: min(v) for k, v in figures.items()}}
+
+
+def row_parts(chunks: int, n: int = 4096) -> dict:
+    """CPU microseconds per row (best of ``chunks``) of the compiled step of v0, v1 and v2 on the
+    calling thread, and of its pieces: commands, the simulator's interval (integrator, lag,
+    delay, track), the task (reward, termination, observation) and the sensor model."""
+    import numpy as np
+
+    from bench_route import make_task
+    from bogie_env.dynamics import N_STATES
+    from bogie_env.envs.task import DETAIL_NAMES, _commands, _sense_run, _step_rows, _task_run
+    from bogie_env.simulator import advance_rows
+
+    out = {"load": os.getloadavg()[0]}
+    for variant in (None, "v1", "v2"):
+        task = make_task(variant, n)
+        sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, scales, health, sensing = args = task._step_args()
+        start, stop = np.int64(0), np.int64(n)
+        scratch, details = np.empty((2, N_STATES)), np.empty((2, len(DETAIL_NAMES)))
+        pieces = {
+            "step": lambda: _step_rows(start, stop, *args),
+            "commands": lambda: _commands(start, stop, sim_rows, channels, action, health),
+            "interval": lambda: advance_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages),
+            "task": lambda: _task_run(start, stop, sim_rows, channels, dt, task_rows, cfg, scales, scratch, details),
+            "sensors": lambda: _sense_run(start, stop, task_rows[1], sensing),
+        }  # fmt: skip
+        best = {k: float("inf") for k in pieces}
+        for _ in range(chunks):
+            for name, call in pieces.items():
+                t0 = time.process_time()
+                for _ in range(5):
+                    call()
+                best[name] = min(best[name], (time.process_time() - t0) / (5 * n) * 1e6)
+        out[variant or "v0"] = {"stages per step": task.n_sub * (task.stages or 4), **{k: round(v, 3) for k, v in best.items()}}
+    return out
 
 
 def cpu_main(args: argparse.Namespace) -> None:
@@ -229,9 +269,13 @@ def main() -> None:
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--parts", action="store_true", help="CPU time of a v2 step and two pieces of it (see the docstring)")
     parser.add_argument("--single", action="store_true", help="single envs against Pendulum-v1 (see the docstring)")
+    parser.add_argument("--row-parts", action="store_true", help="CPU time per row of the step's pieces (see the docstring)")
     args = parser.parse_args()
     if args.single:
         single_main(args.rounds)
+        return
+    if args.row_parts:
+        print(json.dumps(row_parts(args.chunks)))
         return
     if args.parts:
         print(json.dumps(step_parts(args.chunks)))

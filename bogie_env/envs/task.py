@@ -629,14 +629,20 @@ class HuntingTask:
             return StepChoice(dt / ig["n_sub"], ig["n_sub"], float("nan"), float("nan"))
         if ig["step_criterion"] == "stability":
             return stable_substep(self.model, lo, hi, dt, extra_jacobian=extra, stages=self.stages)
+        choices = [accurate_substep(m, lo, hi, dt, ig["tolerance"], extra_jacobian=extra, stages=self.stages)
+                   for m in self.criterion_models()]  # fmt: skip
+        return max(choices, key=lambda choice: choice.n_sub)
+
+    def criterion_models(self) -> list[BogieModel]:
+        """The bogies the step criterion checks: the nominal one, and the ends of the randomised
+        ranges that change the dynamics, all at once and one range at a time."""
         ranges = {k: v for k, v in self.config["randomize"].items() if k in scenarios.RANGES and k != "actuator_gain"}
         models = [self.model]
         for end in (0, 1):
             models.append(scenarios.scenario_model(self.base_params, scenarios.Scenario(**{k: v[end] for k, v in ranges.items()}), self.model))
             for k, v in ranges.items():
                 models.append(scenarios.scenario_model(self.base_params, scenarios.Scenario(**{k: v[end]}), self.model))
-        choices = [accurate_substep(m, lo, hi, dt, ig["tolerance"], extra_jacobian=extra, stages=self.stages) for m in models]
-        return max(choices, key=lambda choice: choice.n_sub)
+        return models
 
     def _task_settings(self) -> np.ndarray:
         c = self.config

@@ -1,0 +1,137 @@
+"""The fewest stages per env step of any explicit Runge-Kutta method under the v2 step criterion.
+
+An explicit S-stage Runge-Kutta method applied to ``x' = J x`` multiplies the state each substep
+by a polynomial ``R(h J)`` of degree at most S. Second order on nonlinear terms needs
+``R(z) = 1 + z + z^2/2 + c_3 z^3 + ... + c_S z^S``; the remaining coefficients are free (any of
+them is reached, e.g. by ``y_k = x + a_k h f(y_{k-1})`` with ``a_k`` the ratios ``c_k / c_{k-1}``).
+For each substep count and stage count this asks a linear program whether some choice of
+``c_3 .. c_S`` meets the criterion the env's step choice uses (``HuntingTask.step_choice``):
+
+- stability: ``|R(1.05 h lambda)| <= max(1, exp(1.1 Re(1.05 h lambda)))`` at every eigenvalue of
+  the criterion's Jacobians (``HuntingTask.criterion_models``: 15 bogies, 7 speeds, at the
+  equilibrium and in flange contact). This is *looser* than ``integrate.stable_substep``, which
+  lets a growing mode grow no faster than exactly (here: up to 10 % faster, the accuracy
+  tolerance), so an infeasible answer is stronger than the env's own rule needs;
+- accuracy: every lightly damped mode's decay rate and frequency within 10 %, as in
+  ``integrate.eigenvalue_errors``, linearised in ``(R - exp) / exp`` and scaled by a free factor
+  ``t`` that the program minimises (``t`` <= 1 meets the criterion to first order; the exact
+  errors of the polynomial found are printed beside it).
+
+Stability is imposed through supporting half-planes ``Re(R(z) e^{-i theta}) <= bound``, each
+implied by ``|R(z)| <= bound``: so the planes are a relaxation, and "infeasible" is a certificate
+that no polynomial of that degree is stable on those eigenvalues (up to the solver's
+tolerance). A feasible answer is checked exactly and cut again (at ``theta = arg R(z)``) until
+it holds exactly.
+
+    python studies/stability_polynomial.py                       # v2's config, 1-6 substeps
+    python studies/stability_polynomial.py --n-sub 1,2 --show     # and the coefficients
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+from scipy.optimize import linprog
+
+from bogie_env.envs.config import make_config
+from bogie_env.envs.task import HuntingTask
+from bogie_env.integrate import spectrum
+
+MARGIN = 1.05  # integrate.stable_substep's default
+GROWTH = 1.1  # a growing mode may grow up to 10 % faster (looser than the env's rule)
+
+
+def criterion_eigenvalues(variant: str = "v2") -> tuple[np.ndarray, float]:
+    """Every eigenvalue the step criterion looks at (1/s), and the env step dt (s)."""
+    task = HuntingTask(1, make_config(variant=variant))
+    lo, hi = task.speed_limits()
+    speeds = np.linspace(lo, hi, 7)
+    return np.concatenate([spectrum(m, speeds).ravel() for m in task.criterion_models()]), float(task.config["dt"])
+
+
+def polynomial(c: np.ndarray, z: np.ndarray) -> np.ndarray:
+    r = np.zeros_like(z, dtype=complex)
+    for ck in c[::-1]:
+        r = r * z + ck
+    return r
+
+
+def mode_errors(c: np.ndarray, h: float, light: np.ndarray) -> tuple[float, float]:
+    """Exact worst relative decay-rate and frequency errors (``integrate.eigenvalue_errors``)."""
+    lam_h = np.log(polynomial(c, h * light)) / h
+    lam_h = lam_h + 2j * np.pi * np.round((light.imag - lam_h.imag) * h / (2 * np.pi)) / h
+    decay = np.abs(lam_h.real - light.real) / np.maximum(np.abs(light.real), 0.01 * np.abs(light))
+    return float(np.max(decay)), float(np.max(np.abs(lam_h.imag - light.imag) / np.abs(light.imag)))
+
+
+def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.1, rounds: int = 60):
+    """(c_0 .. c_S, t) of the most accurate stable polynomial of degree ``stages``, or None."""
+    light = eigenvalues[(eigenvalues.imag > 0) & (-eigenvalues.real < 0.5 * np.abs(eigenvalues))]
+    zs = MARGIN * h * eigenvalues
+    zs = np.unique(np.round(zs[zs.imag >= 0], 12))
+    bound = np.maximum(1.0, np.exp(GROWTH * zs.real)) + 1e-13
+    powers = np.arange(3, stages + 1)
+    fixed = lambda z: 1 + z + z**2 / 2  # noqa: E731
+    rows, rhs = [], []
+    zl = h * light
+    back = np.exp(-zl)
+    for part, scale in ((np.real, np.maximum(np.abs(light.real), 0.01 * np.abs(light))), (np.imag, np.abs(light.imag))):
+        cols = part(zl[:, None] ** powers * back[:, None])
+        const = part(fixed(zl) * back - 1)
+        for sign in (1, -1):
+            rows.append(np.hstack([sign * cols, -tolerance * h * scale[:, None]]))
+            rhs.append(-sign * const)
+
+    def planes(idx: np.ndarray, theta: np.ndarray) -> None:
+        rot = np.exp(-1j * theta)
+        z = zs[idx]
+        rows.append(np.hstack([np.real(z[:, None] ** powers * rot[:, None]), np.zeros((idx.size, 1))]))
+        rhs.append(bound[idx] - np.real(fixed(z) * rot))
+
+    every = np.arange(zs.size)
+    for shift in (0.0, 0.1, -0.1, 0.3, -0.3, 1.0, -1.0, 2.0, -2.0, np.pi):
+        planes(every, zs.imag + shift)
+    cost = np.zeros(powers.size + 1)
+    cost[-1] = 1.0
+    for _ in range(rounds):
+        res = linprog(cost, A_ub=np.vstack(rows), b_ub=np.concatenate(rhs), bounds=[(None, None)] * powers.size + [(0, None)],
+                      method="highs")  # fmt: skip
+        if not res.success:
+            return None
+        c = np.concatenate([[1.0, 1.0, 0.5], res.x[:-1]])
+        r = polynomial(c, zs)
+        bad = np.nonzero(np.abs(r) > bound)[0]
+        if bad.size == 0:
+            return c, float(res.x[-1]), mode_errors(c, h, light)
+        planes(bad, np.angle(r[bad]))
+    return None
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--variant", default="v2")
+    parser.add_argument("--n-sub", default="1,2,3,4,5,6", help="substeps per env step to try")
+    parser.add_argument("--max-stages", type=int, default=16)
+    parser.add_argument("--show", action="store_true", help="print the coefficients found")
+    args = parser.parse_args()
+    eigenvalues, dt = criterion_eigenvalues(args.variant)
+    print(f"{eigenvalues.size} eigenvalues, spectral radius {np.max(np.abs(eigenvalues)):.0f} 1/s, dt {dt * 1e3:g} ms")
+    print(f"{'substeps':>8} {'fewest stages S':>15} {'stages per step':>15} {'t':>8} {'decay err':>10} {'freq err':>9}")
+    for n_sub in map(int, args.n_sub.split(",")):
+        h = dt / n_sub
+        for stages in range(3, args.max_stages + 1):
+            found = design(eigenvalues, h, stages)
+            if found is None or found[1] > 1.0:
+                continue
+            c, t, (decay, freq) = found
+            print(f"{n_sub:>8} {stages:>15} {n_sub * stages:>15} {t:>8.4f} {decay:>10.4f} {freq:>9.4f}", flush=True)
+            if args.show:
+                print("         c =", ", ".join(f"{x:.10g}" for x in c))
+            break
+        else:
+            print(f"{n_sub:>8} {'none <= ' + str(args.max_stages):>15}")
+
+
+if __name__ == "__main__":
+    main()
