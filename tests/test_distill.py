@@ -529,3 +529,35 @@ def test_margins_selection_takes_the_last_iteration_that_meets_the_floors(tmp_pa
     with pytest.raises(SystemExit, match="meets the margin floors"):
         select.select_by_margins(tmp_path, 5, figures)
     assert json.loads((tmp_path / "selection.json").read_text())["chosen"] is None
+
+
+def test_residual_scale_study_rescales_only_the_authority(tmp_path, bank_and_teacher):
+    """studies/residual_scale.py: the copy acts as the original with the correction scaled (the
+    baseline's part unchanged), and bad scales or non-residual students are refused by name."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "studies" / "residual_scale.py"
+    spec = importlib.util.spec_from_file_location("residual_scale", path)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    env_cfg = bank_and_teacher[0]
+    policy, _ = _residual_student(env_cfg)
+    save_student(tmp_path / "s", policy.network, 3, 11, 4, {"residual": {**RESIDUAL, "env_config": env_cfg}})
+    study.scaled_copy(tmp_path / "s", 0.25, tmp_path / "q")
+    assert load_student(tmp_path / "q").meta["residual"]["scale"] == 0.25
+    from bogie_agents.controllers.distilled import ResidualFrames
+    from bogie_agents.controllers.residual import compose
+
+    obs = np.random.default_rng(1).uniform(-0.3, 0.3, (2, 11))
+    copy = load_student(tmp_path / "q")
+    copy.reset(2)
+    frames = ResidualFrames(3, env_cfg, RESIDUAL["baseline"], 0.25, 4)
+    frames.reset(2)
+    x, base = frames.inputs(obs)
+    np.testing.assert_allclose(copy.act(obs), compose(base, policy.network.forward(x), 0.25), atol=1e-6)
+    with pytest.raises(ConfigError, match="--scale = 1.5"):
+        study.scaled_copy(tmp_path / "s", 1.5, tmp_path / "r")
+    save_student(tmp_path / "plain", policy.network, 3, 11, 4, {})
+    with pytest.raises(ConfigError, match="'residual' is missing"):
+        study.scaled_copy(tmp_path / "plain", 0.5, tmp_path / "r")

@@ -1,0 +1,60 @@
+"""A distilled residual student with its correction's authority scaled: the same network, the
+same baseline, ``residual.scale`` set to ``--scale`` (0 < s <= 1). The copy is a student folder
+that ``bogie evaluate --policy OUT --trust-policy`` runs like any other.
+
+The scale multiplies the network's command before it is added to the baseline's
+(``agents.controllers.distilled.ResidualFrames``), so it asks how much of the correction each
+protocol column wants, without training again. Choose a scale on a validation block of seeds
+(``bogie evaluate --seed 1``) and report it on the protocol's seeds (``--seed 0``), not the
+other way round.
+
+    python studies/residual_scale.py --policy RUN/iterations/005 --scale 0.5 --out /tmp/res_s05
+    bogie evaluate --policy /tmp/res_s05 --trust-policy --parts critical --seed 1 --json --out val.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+from bogie_agents.controllers.distilled import META_FILE, WEIGHTS_FILE, load_student
+from bogie_env.params import ConfigError
+
+
+def scaled_copy(policy: str | Path, scale: float, out: str | Path) -> Path:
+    """Write ``policy`` (a residual student folder) to ``out`` with ``residual.scale = scale``;
+    the copy is checked by loading it. ``out`` is written whole or not at all."""
+    policy, out = Path(policy), Path(out)
+    meta = json.loads((policy / META_FILE).read_text())
+    if meta.get("residual") is None:
+        raise ConfigError(f"{policy / META_FILE}: 'residual' is missing; allowed: a residual student (a baseline under it)")
+    if isinstance(scale, bool) or not 0.0 < float(scale) <= 1.0:
+        raise ConfigError(f"--scale = {scale!r}; allowed: a number in (0, 1]")
+    meta["residual"]["scale"] = float(scale)
+    student = meta.get("config", {}).get("student", {})
+    if isinstance(student.get("residual"), dict):
+        student["residual"]["scale"] = float(scale)
+    if out.exists():
+        raise FileExistsError(f"--out {out} exists; choose a new folder")
+    tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent if out.parent.exists() else None))
+    shutil.copy2(policy / WEIGHTS_FILE, tmp / WEIGHTS_FILE)
+    (tmp / META_FILE).write_text(json.dumps(meta, indent=1))
+    load_student(tmp)
+    tmp.rename(out)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--policy", required=True, help="a residual student folder (RUN/iterations/NNN)")
+    parser.add_argument("--scale", type=float, required=True, help="the correction's authority, 0 < s <= 1")
+    parser.add_argument("--out", required=True, help="a new folder")
+    args = parser.parse_args()
+    print(scaled_copy(args.policy, args.scale, args.out))
+
+
+if __name__ == "__main__":
+    main()
