@@ -550,12 +550,26 @@ def test_residual_scale_study_rescales_only_the_authority(tmp_path, bank_and_tea
     from bogie_agents.controllers.residual import compose
 
     obs = np.random.default_rng(1).uniform(-0.3, 0.3, (2, 11))
+    obs[:, 6] = [0.1, 0.25]  # the speed entries: two speeds inside the schedule below
     copy = load_student(tmp_path / "q")
     copy.reset(2)
     frames = ResidualFrames(3, env_cfg, RESIDUAL["baseline"], 0.25, 4)
     frames.reset(2)
     x, base = frames.inputs(obs)
     np.testing.assert_allclose(copy.act(obs), compose(base, policy.network.forward(x), 0.25), atol=1e-6)
+    # a schedule over speed: each row gets the authority at its own speed
+    from bogie_env.envs.task import speed_kmh_from_observation
+
+    study.scaled_copy(tmp_path / "s", study.parse_scale("1@100,0.2@500"), tmp_path / "v")
+    sched = load_student(tmp_path / "v")
+    sched.reset(2)
+    speeds = speed_kmh_from_observation(obs, env_cfg["observation"]["type"])
+    expected = np.interp(speeds, [100.0, 500.0], [1.0, 0.2])[:, None]
+    assert 100 < speeds.min() and speeds.max() < 500 and abs(expected[0, 0] - expected[1, 0]) > 1e-3
+    np.testing.assert_allclose(sched.act(obs), compose(base, policy.network.forward(x), expected), atol=1e-6)
+    for bad in ("1.5", "1@300,0.5@200", "0@100,1@200", "x"):
+        with pytest.raises(ConfigError, match="--scale"):
+            study.parse_scale(bad)
     with pytest.raises(ConfigError, match="--scale = 1.5"):
         study.scaled_copy(tmp_path / "s", 1.5, tmp_path / "r")
     save_student(tmp_path / "plain", policy.network, 3, 11, 4, {})

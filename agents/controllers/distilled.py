@@ -30,6 +30,7 @@ class (:class:`FrameHistory` or :class:`ResidualFrames`), used by training and e
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -97,13 +98,19 @@ class ResidualFrames:
     """A student on a classical baseline (module docstring): per row the baseline, the washed-out
     feature filters and the last ``history`` frames ``[features, speed]``, oldest first."""
 
-    def __init__(self, history: int, env_config: dict, baseline: str, scale: float, action_dim: int) -> None:
+    def __init__(self, history: int, env_config: dict, baseline: str, scale: float | Mapping[str, Any], action_dim: int) -> None:
         from bogie_env.envs.task import speed_index
 
         from .classical import CLASSICAL
         from .residual import WashedOutFeatures
 
-        self.baseline_name, self.scale = baseline, float(scale)
+        self.baseline_name = baseline
+        #: the correction's authority: a number, or None with :attr:`schedule` over speed
+        self.scale: float | None = None if isinstance(scale, Mapping) else float(scale)
+        #: (speeds in km/h, authorities), linear in between and constant beyond; None: :attr:`scale`
+        self.schedule = None if self.scale is not None else (np.asarray(scale["speeds_kmh"], float), np.asarray(scale["scales"], float))
+        self._row_scale: float | np.ndarray = self.scale if self.scale is not None else 1.0
+        self.observation_type = env_config["observation"]["type"]
         self.baseline = CLASSICAL[baseline](env_config)
         self.features = WashedOutFeatures(env_config)
         self.obs_dim = self.features.filters.n_obs
@@ -125,8 +132,23 @@ class ResidualFrames:
         self.features.reset(n_envs, rows)
         self.stack.reset(n_envs, rows)
 
+    def scale_at(self, speed_kmh: float | np.ndarray) -> float | np.ndarray:
+        """The correction's authority at ``speed_kmh``."""
+        if self.schedule is None:
+            return self.scale
+        return np.interp(speed_kmh, *self.schedule)
+
+    def scale_label(self) -> str:
+        if self.schedule is None:
+            return f"{self.scale:g}"
+        return "(" + ", ".join(f"{s:g} at {v:g} km/h" for v, s in zip(*self.schedule)) + ")"
+
     def inputs(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         obs = np.asarray(obs, dtype=np.float32)
+        if self.schedule is not None:  # each row's authority at its speed, for command() and target()
+            from bogie_env.envs.task import speed_kmh_from_observation
+
+            self._row_scale = self.scale_at(speed_kmh_from_observation(obs, self.observation_type))[:, None]
         base = np.asarray(self.baseline.act(obs), dtype=np.float32)
         frame = np.concatenate([self.features(obs), obs[:, self.speed_column : self.speed_column + 1]], axis=1)
         return self.stack.push(frame), base
@@ -137,10 +159,10 @@ class ResidualFrames:
     def command(self, output: np.ndarray, base: np.ndarray) -> np.ndarray:
         from .residual import compose
 
-        return compose(base, output, self.scale)
+        return compose(base, output, self._row_scale)
 
     def target(self, label: np.ndarray, base: np.ndarray) -> np.ndarray:
-        return np.clip((np.asarray(label, dtype=np.float64) - base) / self.scale, -1.0, 1.0).astype(np.float32)
+        return np.clip((np.asarray(label, dtype=np.float64) - base) / self._row_scale, -1.0, 1.0).astype(np.float32)
 
 
 class StudentNetwork:
@@ -318,13 +340,14 @@ def residual_student_model(policy: DistilledPolicy, n_obs: int, speed_kmh: float
 
     frames = policy.frames
     y0 = np.asarray(y0, dtype=np.float64).reshape(-1)
-    method = (f"distilled correction on {frames.baseline_name}: its model + {frames.scale:g} x analytic Jacobian on "
+    scale = float(frames.scale_at(speed_kmh))
+    method = (f"distilled correction on {frames.baseline_name}: its model + {scale:g} x analytic Jacobian on "
               f"{frames.history} frames of washed-out features and the speed")  # fmt: skip
     base = controller_model(frames.baseline, n_obs, speed_kmh, y0)
     u0 = policy.steady_action(y0)
     features = feature_frame_model(frames, n_obs, speed_kmh)
     x0 = np.tile(np.concatenate([np.zeros(frames.features.dim), [y0[frames.speed_column]]]), frames.history)
-    inner = stack_model(frames.scale * policy.network.jacobian(x0), frames.frame_dim, frames.history, method)
+    inner = stack_model(scale * policy.network.jacobian(x0), frames.frame_dim, frames.history, method)
     total = parallel(base, series(features, inner, method), method)
     live = (np.abs(u0) < 1.0 - 1e-9).astype(np.float64)[:, None]
     return ControllerModel(total.a, total.b, live * total.c, live * total.d, method)
@@ -390,6 +413,23 @@ def load_student(folder: str | Path) -> DistilledPolicy:
     return DistilledPolicy(network, meta["history"], meta["obs_dim"], meta["action_dim"], name=str(folder), meta=meta, frames=frames)
 
 
+def checked_scale(scale: Any, where: str) -> float | dict[str, list[float]]:
+    """A residual student's authority: a number in (0, 1], or a schedule over speed
+    ``{"speeds_kmh": [increasing], "scales": [each in (0, 1]]}`` of equal lengths (>= 2)."""
+    if isinstance(scale, Mapping):
+        speeds, scales = scale.get("speeds_kmh"), scale.get("scales")
+        ok = (set(scale) == {"speeds_kmh", "scales"} and isinstance(speeds, list) and isinstance(scales, list)
+              and len(speeds) == len(scales) >= 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in speeds + scales)
+              and all(b > a for a, b in zip(speeds, speeds[1:])) and all(0.0 < x <= 1.0 for x in scales))  # fmt: skip
+        if not ok:
+            raise ConfigError(f"{where} = {scale!r}; allowed: a number in (0, 1], or {{'speeds_kmh': [increasing], 'scales': "
+                              "[each in (0, 1]]}} of equal lengths >= 2")  # fmt: skip
+        return {"speeds_kmh": [float(x) for x in speeds], "scales": [float(x) for x in scales]}
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= 1.0:
+        raise ConfigError(f"{where} = {scale!r}; allowed: a number in (0, 1], or a schedule over speed")
+    return float(scale)
+
+
 def residual_frames(meta: dict[str, Any], folder: Path | str = "student") -> ResidualFrames:
     """The :class:`ResidualFrames` a student file's ``residual`` (``{"baseline", "scale",
     "env_config"}``: the classical controller's name, the correction's authority and the env
@@ -404,9 +444,7 @@ def residual_frames(meta: dict[str, Any], folder: Path | str = "student") -> Res
         raise ConfigError(f"{where} = {residual!r}; allowed: a mapping with 'baseline', 'scale' and 'env_config'")
     if residual["baseline"] not in CLASSICAL:
         raise ConfigError(f"{where}.baseline = {residual['baseline']!r}; allowed: one of {', '.join(CLASSICAL)}")
-    scale = residual["scale"]
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= 1.0:
-        raise ConfigError(f"{where}.scale = {scale!r}; allowed: a number in (0, 1]")
+    scale = checked_scale(residual["scale"], f"{where}.scale")
     env_config = make_config(residual["env_config"])
     frames = ResidualFrames(meta["history"], env_config, residual["baseline"], scale, meta["action_dim"])
     if frames.obs_dim != meta["obs_dim"]:
