@@ -51,10 +51,14 @@ def scaled_copy(policy: str | Path, scale: float | dict, out: str | Path) -> Pat
     if out.exists():
         raise FileExistsError(f"--out {out} exists; choose a new folder")
     tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent if out.parent.exists() else None))
-    shutil.copy2(policy / WEIGHTS_FILE, tmp / WEIGHTS_FILE)
-    (tmp / META_FILE).write_text(json.dumps(meta, indent=1))
-    load_student(tmp)
-    tmp.rename(out)
+    try:
+        shutil.copy2(policy / WEIGHTS_FILE, tmp / WEIGHTS_FILE)
+        (tmp / META_FILE).write_text(json.dumps(meta, indent=1))
+        load_student(tmp)
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     return out
 
 
