@@ -2,7 +2,7 @@
 integration steps: whether a step changes the physics or only which seeds fail.
 
     python studies/fixed_speed_failure_rate.py [--policy robust_steering] \
-        [--n-sub 10,40] [--conicity 0.025] [--speeds 460:600:20] [--seeds 40]
+        [--n-sub 10,40] [--conicity 0.025] [--speeds 460:600:20] [--seeds 40] [--degraded Kpx-50%]
 
 Each (seed, speed) row is one protocol v2 run (``agents/evaluation/stability_protocol.py``: 20 s at a fixed
 speed, the first 5 s discarded, the 12 mm start, the controller told the conicity class),
@@ -10,7 +10,11 @@ seeds 0 to ``--seeds`` - 1, all rows of a step in one batch. Where two attractor
 bogie settles, or falls into a hunting cycle), the column's lowest seed is a sample minimum
 over ten seeds; the failure rate per speed is the quantity a step could bias. Prints JSON: per
 step and speed the failing seeds and their fraction with its binomial standard error; progress
-on stderr.
+on stderr. ``--degraded NAME``: every row with one of the protocol's degraded bogies
+(``stability_protocol.DEGRADED``), as in that column; ``--trust-policy``: a ``--policy`` may be a
+path, loaded as ``bogie evaluate --trust-policy`` does. The criterion is the protocol's current
+version (v3). Unlike the protocol's search, which checks a grid of speeds and bisects above the
+highest passing one, this looks at every speed asked for.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import time
 import numpy as np
 
 from bogie_env.envs.config import make_config
-from bogie_agents.evaluation.stability_protocol import (NOMINAL_OPTIONS, Case, PartContext, Progress, Runner, Settings,
+from bogie_agents.evaluation.stability_protocol import (DEGRADED, NOMINAL_OPTIONS, Case, PartContext, Progress, Runner, Settings,
                                              factory_for)  # fmt: skip
 from lambda_low_speed_diagnosis import parse_speeds  # this folder: the script's own directory is on sys.path
 
@@ -36,7 +40,12 @@ def main() -> None:
     parser.add_argument("--conicity", type=float, default=0.025)
     parser.add_argument("--speeds", default="460:600:20")
     parser.add_argument("--seeds", type=int, default=40)
+    parser.add_argument("--degraded", default=None, help=f"one of {', '.join(DEGRADED)} (default: the nominal bogie)")
+    parser.add_argument("--trust-policy", action="store_true", help="load a --policy path (an SB3 file is code: only your own runs)")
     args = parser.parse_args()
+    if args.degraded is not None and args.degraded not in DEGRADED:
+        parser.error(f"--degraded = {args.degraded!r}; allowed: {', '.join(DEGRADED)}")
+    degraded = DEGRADED[args.degraded] if args.degraded else {}
     steps = [int(v) for v in args.n_sub.split(",")]
     try:
         speeds = parse_speeds(args.speeds)
@@ -49,10 +58,10 @@ def main() -> None:
     for k, n_sub in enumerate(steps):
         config = make_config({"integration": {"n_sub": n_sub}}, variant="v1")
         settings = Settings(progress=False)
-        factory = factory_for(args.policy)
+        factory = factory_for(args.policy, trusted=args.trust_policy)
         ctx = PartContext(factory, config, settings, getattr(factory(config), "observation_type", "sensors"),
                           Progress(args.policy, False))  # fmt: skip
-        cases = [Case("fixed", seed, {**NOMINAL_OPTIONS, "conicity": args.conicity}, args.conicity)
+        cases = [Case("fixed", seed, {**NOMINAL_OPTIONS, **degraded, "conicity": args.conicity}, args.conicity)
                  for _ in speeds for seed in range(args.seeds)]  # fmt: skip
         rows_kmh = np.repeat(speeds, args.seeds)
         result = Runner(ctx).run(cases, rows_kmh, "fixed speeds", 0)
