@@ -89,3 +89,27 @@ def test_the_packed_serial_step_is_the_unpacked_one():
     tasks[0].step(actions[0])
     _step_serial(actions[0], *tasks[1]._step_args())
     np.testing.assert_array_equal(tasks[0].states, tasks[1].states)
+
+
+def test_a_stepped_task_pickles_and_copies_and_steps_on_its_own_arrays():
+    """The packed step arguments are not pickled or copied; a copy steps its own arrays."""
+    import copy
+    import pickle
+
+    import numpy as np
+
+    from bogie_env.envs.config import make_config
+    from bogie_env.envs.task import HuntingTask
+
+    task = HuntingTask(2, make_config(variant="v2"))
+    task.seed_rows(np.arange(2), [4, 5])
+    task.reset_rows(np.arange(2), None)
+    action = np.full((2, task.action_dim), 0.3)
+    task.step(action)
+    for duplicate in (lambda t: pickle.loads(pickle.dumps(t)), copy.deepcopy):
+        twin = duplicate(task)
+        before = task.states.copy()
+        twin.step(action)
+        np.testing.assert_array_equal(task.states, before)  # the original is untouched
+        task.step(action)
+        np.testing.assert_array_equal(twin.states, task.states)

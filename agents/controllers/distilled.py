@@ -138,11 +138,6 @@ class ResidualFrames:
             return self.scale
         return np.interp(speed_kmh, *self.schedule)
 
-    def scale_label(self) -> str:
-        if self.schedule is None:
-            return f"{self.scale:g}"
-        return "(" + ", ".join(f"{s:g} at {v:g} km/h" for v, s in zip(*self.schedule)) + ")"
-
     def inputs(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         obs = np.asarray(obs, dtype=np.float32)
         if self.schedule is not None:  # each row's authority at its speed, for command() and target()

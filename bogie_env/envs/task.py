@@ -921,6 +921,13 @@ class HuntingTask:
         if self.config["observation"]["noise"] > 0:
             self._add_noise(np.arange(self.num_envs))
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickle and deepcopy without the packed step arguments (a compiled object; rebuilt from
+        the copy's own arrays at its first step)."""
+        state = self.__dict__.copy()
+        state["_packed_step_args"] = None
+        return state
+
     def _step_args(self) -> tuple:
         """The step kernels' arguments after the actions (:data:`STEP_ARG_NAMES`). Packed once, at
         the first step, for the calling thread's loop: arrays replaced after that are not seen."""
