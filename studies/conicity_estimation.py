@@ -1,7 +1,8 @@
 """How fast ``adaptive_lqg`` (``agents/adaptive.py``) finds the conicity it is not told, in protocol runs.
 
     python studies/conicity_estimation.py [--conicities 0.025,0.05,0.1,0.2,0.3] [--seeds 5] \
-        [--speeds 0.025=150,250,350 --speeds 0.3=60,80,100] [--duration 20] [--json]
+        [--speeds 0.025=150,250,350 --speeds 0.3=60,80,100] [--duration 20] [--json] \
+        [--controller adaptive_lqg_rate] [--degraded Kpx-50%]
 
 Each (conicity, speed, seed) row is one protocol run (``agents/stability_protocol.py``: the v1
 env at a fixed speed, the 12 mm start, the alert-level track, sensor noise and bias, 10 ms loop
@@ -12,6 +13,9 @@ the true conicity to the end of the run (the run's length if it never settles); 
 estimate's error ``estimate / true - 1``; the share of the run's steps at which the commanding
 model is the bank model nearest the true conicity; and how many seeds pass the protocol's
 criterion. Prints a Markdown table (or JSON with ``--json``); progress on stderr.
+``--controller adaptive_lqg_rate`` records that variant instead; ``--degraded NAME`` runs every
+row with one of the protocol's degraded bogies (``stability_protocol.DEGRADED``), which the
+controller is not told either.
 """
 
 from __future__ import annotations
@@ -25,8 +29,8 @@ from dataclasses import replace
 import numpy as np
 
 from bogie_env.envs.config import make_config
-from bogie_agents.controllers.adaptive import AdaptiveLQGController
-from bogie_agents.evaluation.stability_protocol import NOMINAL_OPTIONS, Case, PartContext, Progress, Runner, Settings
+from bogie_agents.controllers.adaptive import AdaptiveLQGController, AdaptiveRateLQGController
+from bogie_agents.evaluation.stability_protocol import DEGRADED, NOMINAL_OPTIONS, Case, PartContext, Progress, Runner, Settings
 
 #: Default speeds per conicity (km/h): below each conicity's closed-loop critical speed of
 #: adaptive_lqg under protocol v3 (docs/studies/conicity_estimation.md).
@@ -36,8 +40,8 @@ DEFAULT_SPEEDS: dict[float, tuple[float, ...]] = {0.025: (150.0, 250.0, 350.0), 
 FACTOR = 1.25
 
 
-class Recording(AdaptiveLQGController):
-    """The controller, recording its conicity estimate and selected model after every step."""
+class _Recorder:
+    """Records an adaptive controller's conicity estimate and selected model after every step."""
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         super().reset(n_envs, rows)
@@ -50,6 +54,17 @@ class Recording(AdaptiveLQGController):
         return actions
 
 
+class Recording(_Recorder, AdaptiveLQGController):
+    """``adaptive_lqg``, recording."""
+
+
+class RecordingRate(_Recorder, AdaptiveRateLQGController):
+    """``adaptive_lqg_rate``, recording."""
+
+
+RECORDING = {"adaptive_lqg": Recording, "adaptive_lqg_rate": RecordingRate}
+
+
 def settling_time(ratio: np.ndarray, dt: float, factor: float = FACTOR) -> np.ndarray:
     """Per row of ``ratio`` (rows, steps: estimate / true), the time from which it stays within
     ``[1/factor, factor]`` to the end; the run's length where it is outside at the end."""
@@ -60,17 +75,19 @@ def settling_time(ratio: np.ndarray, dt: float, factor: float = FACTOR) -> np.nd
     return (last_out + 1) * dt
 
 
-def run_conicity(conicity: float, speeds: list[float], seeds: int, duration_s: float, **controller: object) -> list[dict]:
+def run_conicity(conicity: float, speeds: list[float], seeds: int, duration_s: float, name: str = "adaptive_lqg",
+                 degraded: str | None = None, **controller: object) -> list[dict]:  # fmt: skip
     config = make_config(variant="v1")
     settings = Settings(progress=False, duration_s=duration_s)
-    holder: dict[str, Recording] = {}
+    holder: dict[str, _Recorder] = {}
 
-    def factory(cfg: dict) -> Recording:
-        holder["policy"] = Recording(cfg, **controller)
+    def factory(cfg: dict) -> _Recorder:
+        holder["policy"] = RECORDING[name](cfg, **controller)
         return holder["policy"]
 
-    ctx = PartContext(factory, config, settings, "sensors", Progress("adaptive_lqg", False))
-    cases = [Case("fixed", seed, {**NOMINAL_OPTIONS, "conicity": conicity}, conicity) for _ in speeds for seed in range(seeds)]
+    ctx = PartContext(factory, config, settings, "sensors", Progress(name, False))
+    options = {**NOMINAL_OPTIONS, **(DEGRADED[degraded] if degraded else {}), "conicity": conicity}
+    cases = [Case("fixed", seed, options, conicity) for _ in speeds for seed in range(seeds)]
     rows_kmh = np.repeat(np.asarray(speeds, dtype=float), seeds)
     result = Runner(ctx).run(cases, rows_kmh, f"conicity {conicity:g}", 0)
     policy = holder["policy"]
@@ -112,6 +129,8 @@ def main() -> None:
     parser.add_argument("--speeds", action="append", default=[], help="CONICITY=KMH,KMH,... (repeatable)")
     parser.add_argument("--duration", type=float, default=20.0, help="run length, s (the protocol's: 20)")
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--controller", default="adaptive_lqg", choices=sorted(RECORDING))
+    parser.add_argument("--degraded", default=None, choices=sorted(DEGRADED), help="a degraded bogie (default: nominal)")
     args = parser.parse_args()
     lams = [float(v) for v in args.conicities.split(",")]
     try:
@@ -125,7 +144,7 @@ def main() -> None:
     rows = []
     t0 = time.monotonic()
     for lam in lams:
-        rows += run_conicity(lam, list(speeds[lam]), args.seeds, args.duration)
+        rows += run_conicity(lam, list(speeds[lam]), args.seeds, args.duration, args.controller, args.degraded)
         print(f"[conicity_estimation] conicity {lam:g} done, {time.monotonic() - t0:.0f} s", file=sys.stderr, flush=True)
     if args.json:
         print(json.dumps(rows, indent=1))
