@@ -1,10 +1,10 @@
-"""The fraction of seeds that fail protocol v2's criterion at fixed speeds, at several
+"""The fraction of seeds that fail the protocol's criterion at fixed speeds, at several
 integration steps: whether a step changes the physics or only which seeds fail.
 
     python studies/fixed_speed_failure_rate.py [--policy robust_steering] \
         [--n-sub 10,40] [--conicity 0.025] [--speeds 460:600:20] [--seeds 40] [--degraded Kpx-50%]
 
-Each (seed, speed) row is one protocol v2 run (``agents/evaluation/stability_protocol.py``: 20 s at a fixed
+Each (seed, speed) row is one protocol run (``agents/evaluation/stability_protocol.py``: 20 s at a fixed
 speed, the first 5 s discarded, the 12 mm start, the controller told the conicity class),
 seeds 0 to ``--seeds`` - 1, all rows of a step in one batch. Where two attractors coexist (the
 bogie settles, or falls into a hunting cycle), the column's lowest seed is a sample minimum

@@ -7,12 +7,12 @@ between; ``distilled.checked_scale``). The copy is a student folder that
 The scale multiplies the network's command before it is added to the baseline's
 (``agents.controllers.distilled.ResidualFrames``), so it asks how much of the correction each
 protocol column wants, without training again. Choose a scale on a validation block of seeds
-(``bogie evaluate --seed 1``) and report it on the protocol's seeds (``--seed 0``), not the
-other way round.
+(``bogie evaluate --seed 10``: seeds 10-19, none shared with the protocol's) and report it on the
+protocol's seeds (``--seed 0``: seeds 0-9), not the other way round.
 
     python studies/residual_scale.py --policy RUN/iterations/005 --scale 0.5 --out /tmp/res_s05
     python studies/residual_scale.py --policy RUN/iterations/005 --scale 1@300,0.25@400 --out /tmp/res_sched
-    bogie evaluate --policy /tmp/res_s05 --trust-policy --parts critical --seed 1 --json --out val.json
+    bogie evaluate --policy /tmp/res_s05 --trust-policy --parts critical --seed 10 --json --out val.json
 """
 
 from __future__ import annotations
@@ -50,7 +50,8 @@ def scaled_copy(policy: str | Path, scale: float | dict, out: str | Path) -> Pat
     meta["residual_scale_of"] = {"policy": str(policy), "trained_scale": meta.get("config", {}).get("student", {}).get("residual", {}).get("scale")}
     if out.exists():
         raise FileExistsError(f"--out {out} exists; choose a new folder")
-    tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent if out.parent.exists() else None))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent))
     try:
         shutil.copy2(policy / WEIGHTS_FILE, tmp / WEIGHTS_FILE)
         (tmp / META_FILE).write_text(json.dumps(meta, indent=1))

@@ -199,7 +199,7 @@ class LoopPenalty:
         import torch
 
         self.settings = settings
-        self.scale = frames.scale
+        self.frames = frames  # the correction's authority per term: frames.scale_at(term speed)
         self.terms = []
         points = [(p, "margins") for p in settings["points"]] + [(p, "stable") for p in settings["stable_points"]] + \
                  [(p, "faults") for p in settings["fault_points"]]  # fmt: skip
@@ -242,7 +242,7 @@ class LoopPenalty:
         log2 = self.settings["horizon_log2"]
         out = []
         for t, a0, b, phi in zip(self.terms, self._a0, self._b, self._phi):
-            j = self.scale * self.jacobian(linears, mean, std, t.speed_input)
+            j = float(self.frames.scale_at(t.speed_kmh)) * self.jacobian(linears, mean, std, t.speed_input)
             m = a0 + b @ (j @ phi)
             logs = torch.zeros(m.shape[0], dtype=torch.float64)
             for _ in range(log2):
@@ -275,7 +275,7 @@ class LoopPenalty:
         out = []
         with torch.no_grad():
             for t, a0, b, phi in zip(self.terms, self._a0, self._b, self._phi):
-                m = (a0 + b @ (self.scale * self.jacobian(linears, mean, std, t.speed_input) @ phi)).numpy()
+                m = (a0 + b @ (float(self.frames.scale_at(t.speed_kmh)) * self.jacobian(linears, mean, std, t.speed_input) @ phi)).numpy()
                 out.append(np.log(np.abs(np.linalg.eigvals(m)).max(axis=-1)) / t.dt)
         return np.concatenate(out)
 
