@@ -137,6 +137,7 @@ class BogieHuntingSB3VecEnv(VecEnv):
                 raise ValueError(f"{attr_name!r} belongs to the task that all {self.num_envs} sub-envs share; "
                                  "set it without indices")  # fmt: skip
             setattr(self.task, attr_name, value)
+            self.task._packed_step_args = None  # the step's packed arrays are rebuilt from the task's
             return
         for i in rows:
             self._per_env()[i][attr_name] = value
