@@ -228,9 +228,12 @@ def single_main(rounds: int, steps: int = 40000) -> None:
 
 def single_parts(calls: int = 10000) -> dict:
     """µs per call of the single v2 env's step and of its pieces: the task's step, the compiled
-    kernel called as the task calls it, the info dict and the observation copy."""
+    kernel called as the task calls it, the info dict and the observation copy; and what passing
+    the kernel's arguments alone costs, packed (as the task does) and one by one."""
     import gymnasium as gym
     import numpy as np
+
+    from numba import njit
 
     from bogie_env.envs.task import StepArgs, _step_serial_packed
 
@@ -239,13 +242,26 @@ def single_parts(calls: int = 10000) -> dict:
     task = env.task
     action = np.zeros(env.action_space.shape, dtype=np.float32)
     kernel_args = (action[None, :], StepArgs(*task._step_args()))
+    unpacked_args = (action[None, :], *task._step_args())
+
+    @njit
+    def nothing_packed(action_in, packed):  # compiled calls that do no work: what passing the arguments costs
+        return 0
+
+    @njit
+    def nothing(*args):
+        return 0
+
+    nothing_packed(*kernel_args)
+    nothing(*unpacked_args)
 
     def env_step():
         if any(env.step(action)[2:4]):
             env.reset()
 
     pieces = {"env.step": env_step, "task.step": lambda: task.step(action), "kernel": lambda: _step_serial_packed(*kernel_args),
-              "info_dict": lambda: task.info_dict(0), "obs copy": lambda: task.obs[0].copy()}  # fmt: skip
+              "info_dict": lambda: task.info_dict(0), "obs copy": lambda: task.obs[0].copy(),
+              "dispatch packed": lambda: nothing_packed(*kernel_args), "dispatch unpacked": lambda: nothing(*unpacked_args)}  # fmt: skip
     out = {}
     for name, call in pieces.items():
         best = float("inf")
