@@ -520,6 +520,27 @@ def jacobian_kernel(x, V, Q, yt, p, jac):
             jac[k, j] = out[k].imag / h
 
 
+@njit(cache=True)
+def _newton_equilibrium(v, q, yt, p, tol):
+    """Newton from rest on ``rhs = 0`` (:meth:`BogieModel.equilibrium`): the state and -1 when
+    converged, else the last state and its residual's max norm."""
+    x = np.zeros(N_STATES)
+    f = np.empty(N_STATES)
+    jac = np.empty((N_STATES, N_STATES))
+    for _ in range(50):
+        rhs_single_kernel(x, v, q, yt, p, f)
+        if np.max(np.abs(f)) < tol:
+            return x, -1.0
+        jacobian_kernel(x, v, q, yt, p, jac)
+        step = solve_dense(jac, -f)
+        x = x + step
+        if not np.all(np.isfinite(x)):
+            break
+        if np.max(np.abs(step)) < 1e-16:
+            return x, -1.0
+    return x, np.max(np.abs(f))
+
+
 # ---------------------------------------------------------------------------------
 # Checked Python front-end
 # ---------------------------------------------------------------------------------
@@ -645,19 +666,7 @@ class BogieModel:
         """
         v = float(check_speed(speed))
         q = _as_rows(np.zeros(N_INPUTS) if inputs is None else inputs, N_INPUTS, 1, "inputs")[0]
-        yt = np.zeros(N_TRACK)
-        x = np.zeros(N_STATES)
-        f = np.empty(N_STATES)
-        jac = np.empty((N_STATES, N_STATES))
-        for _ in range(50):
-            rhs_single_kernel(x, v, q, yt, self.coefficients, f)
-            if np.max(np.abs(f)) < tol:
-                return x
-            jacobian_kernel(x, v, q, yt, self.coefficients, jac)
-            step = solve_dense(jac, -f)
-            x = x + step
-            if not np.all(np.isfinite(x)):
-                break
-            if np.max(np.abs(step)) < 1e-16:
-                return x
-        raise RuntimeError(f"equilibrium: Newton did not converge at {speed} m/s (residual {np.max(np.abs(f)):.3g})")
+        x, residual = _newton_equilibrium(v, q, np.zeros(N_TRACK), self.coefficients, tol)
+        if residual < 0.0:
+            return x
+        raise RuntimeError(f"equilibrium: Newton did not converge at {speed} m/s (residual {residual:.3g})")

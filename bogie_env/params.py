@@ -14,7 +14,6 @@ Names are the paper's symbols without braces or underscores (``Kpx``, ``Csy``, `
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from importlib import resources
@@ -260,10 +259,19 @@ class BogieParams:
     # ---- variants -----------------------------------------------------------------
     def replace(self, **changes: Any) -> "BogieParams":
         """A copy with some parameters set to new values (validated)."""
-        for name in changes:
-            if name not in FIELDS and name not in CHOICES:
+        validated = {}
+        for name, value in changes.items():
+            if name in FIELDS:
+                validated[name] = validate_value(name, value)
+            elif name in CHOICES:
+                validated[name] = validate_choice(name, value)
+            else:
                 raise ConfigError(f"unknown parameter {name!r}; known parameters: {_known()}")
-        return dataclasses.replace(self, **changes)
+        # the other fields were validated when self was built: only the changes are checked again
+        copy = object.__new__(type(self))
+        copy.__dict__.update(self.__dict__)
+        copy.__dict__.update(validated)
+        return copy
 
     def scaled(self, **factors: float) -> "BogieParams":
         """A copy with parameters multiplied by factors, e.g. ``scaled(Csy=0.5, Kpz=2.5)``."""

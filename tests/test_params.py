@@ -66,6 +66,19 @@ def test_variants_scale_and_replace(paper_params):
         paper_params.scaled(Cs=2.0)
 
 
+def test_replace_checks_only_the_changes_and_builds_what_the_constructor_builds(paper_params):
+    import dataclasses
+
+    fast = paper_params.replace(Csy="45000", lam=0.2, f11=None, secondary_heights="printed")
+    slow = dataclasses.replace(paper_params, Csy="45000", lam=0.2, f11=None, secondary_heights="printed")
+    assert fast == slow and fast.to_dict() == slow.to_dict() and fast.source == slow.source
+    assert type(fast.Csy) is float and hash(fast) == hash(slow)
+    with pytest.raises(ConfigError, match="'lam' = -0.1 is out of range"):
+        paper_params.replace(lam=-0.1)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fast.Csy = 1.0
+
+
 def test_cli_style_overrides_and_yaml_exponents(tmp_path, paper_params):
     params = load_params(None, ["Csy=45000", "Kpz = 1e6"])
     assert params.Csy == 45000 and params.Kpz == 1e6

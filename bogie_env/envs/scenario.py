@@ -25,7 +25,8 @@ import numpy as np
 
 from ..actuators import CHANNEL_NAMES, CH_C_MAX, CH_C_MIN, CH_MAX_FORCE, CH_MODE, H_GAIN, H_HELD_DAMPING, H_HELD_FORCE
 from ..actuators import MODE_FORCE, MODE_OFF, MODE_SEMI, N_CHANNELS, healthy
-from ..dynamics import P_F11, P_F12, P_F22, P_F33, BogieModel
+from ..contact import creep_coefficients
+from ..dynamics import BogieModel
 from ..params import FIELDS, BogieParams, ConfigError
 
 
@@ -241,9 +242,8 @@ def scenario_model(base: BogieParams, s: Scenario, nominal: BogieModel) -> Bogie
     if s.conicity is not None:
         params = params.replace(lam=s.conicity)
     if s.creep_factor != 1.0:
-        c = BogieModel(params).coefficients
-        params = params.replace(**{k: c[i] * s.creep_factor for k, i in (("f11", P_F11), ("f12", P_F12),
-                                                                         ("f22", P_F22), ("f33", P_F33))})  # fmt: skip
+        creep = creep_coefficients(params)
+        params = params.replace(**{k: getattr(creep, k) * s.creep_factor for k in ("f11", "f12", "f22", "f33")})
     return BogieModel(params)
 
 
