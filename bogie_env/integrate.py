@@ -68,31 +68,73 @@ def _same_row(weights, a, b):
     return True
 
 
-#: Integration methods (``integration.method``) and their stages per substep: classic RK4 (v0, v1),
-#: or an S-stage explicit method whose stability polynomial is exp's degree-S Taylor polynomial
-#: (:func:`_advance_lanes_taylor`; v2: 10 stages). The kernels take the stage count, 0 for RK4.
-METHOD_STAGES: dict[str, int] = {"rk4": 0, "taylor10": 10}
+#: The 14-stage method of ``Bogie/Hunting-v3``: its stage divisors d_0 .. d_13 (below). They
+#: define the stability polynomial ``1 + z/d_13 (1 + z/d_12 (... (1 + z/d_0)))`` =
+#: ``1 + z + z^2/2 + c_3 z^3 + ... + c_14 z^14``, whose coefficients c_3 .. c_14 a linear program
+#: chose for the step criterion's spectrum at one 10-ms substep (``python
+#: studies/stability_polynomial.py --growth 1.0 --n-sub 1 --show``, docs/studies/integrator.md),
+#: as it printed them. d_13 = 1 and d_12 = 2 make the method of second order on nonlinear terms.
+POLY14_DIVISORS: tuple[float, ...] = (
+    25.026362970100465, 19.113937938097123, 14.728832171587397, 12.211491423537817, 10.675076582224392,
+    9.234679006962972, 8.141568362944335, 7.034681039723269, 6.023502038517225, 5.002896328157643,
+    4.00277186388854, 2.999922128425904, 2.0, 1.0,
+)  # fmt: skip
+
+#: Integration methods (``integration.method``) and their stage divisors: classic RK4 (v0, v1;
+#: no divisors), or an S-stage explicit method in Jameson's form, ``y_0 = x``,
+#: ``y_{k+1} = x + h / d_k f(y_k)``, ``x <- y_S`` (:func:`_advance_lanes_taylor`): "taylor10", whose
+#: divisors 10, 9, ..., 1 make its stability polynomial exp's degree-10 Taylor polynomial (v2), and
+#: "poly14", 14 stages with a polynomial designed for the bogie's spectrum (v3). The kernels take
+#: the divisors (an empty array for RK4).
+METHOD_DIVISORS: dict[str, tuple[float, ...]] = {
+    "rk4": (),
+    "taylor10": tuple(float(10 - k) for k in range(10)),
+    "poly14": POLY14_DIVISORS,
+}
+#: Stages per substep of each method (0: classic RK4, which the kernels treat apart).
+METHOD_STAGES: dict[str, int] = {name: len(d) for name, d in METHOD_DIVISORS.items()}
+
+
+def method_divisors(method: int | str | tuple[float, ...] | np.ndarray) -> np.ndarray:
+    """The stage divisors (float64 array) of ``method``: a name of :data:`METHOD_DIVISORS`, the
+    divisors themselves, or an int S, the S-stage Taylor method (0: classic RK4, no divisors)."""
+    if isinstance(method, str):
+        if method not in METHOD_DIVISORS:
+            raise ValueError(f"integration method {method!r} is not known; known: {', '.join(METHOD_DIVISORS)}")
+        return np.array(METHOD_DIVISORS[method], dtype=np.float64)
+    if isinstance(method, (int, np.integer)) and not isinstance(method, bool):
+        if method != 0 and not 2 <= method <= 64:
+            raise ValueError(f"stages = {method!r} must be 0 (RK4) or an integer in [2, 64] (the Taylor method's stages)")
+        return np.array([float(method - k) for k in range(method)], dtype=np.float64)
+    divisors = np.asarray(method, dtype=np.float64).ravel()
+    if divisors.size and not (2 <= divisors.size <= 64 and np.all(np.isfinite(divisors)) and np.all(divisors > 0)
+                              and divisors[-1] == 1.0 and divisors[-2] == 2.0):  # fmt: skip
+        raise ValueError(f"stage divisors {divisors.tolist()!r} must be 2-64 finite positive numbers ending in 2, 1 "
+                         "(second order)")  # fmt: skip
+    return divisors
 
 
 @njit(cache=True, inline="always")
-def taylor_stage_time(stage, stages):
-    """The time, in substeps, of the state stage ``stage`` (0 .. stages - 1) of the S-stage Taylor
-    method evaluates: 0, then 1/S, 1/(S-1), ..., 1/2 (:func:`_advance_lanes_taylor`)."""
+def taylor_stage_time(stage, divisors):
+    """The time, in substeps, at which stage ``stage`` (0 .. S - 1) of the method with stage
+    ``divisors`` evaluates the right-hand side: 0, then ``1 / d_{stage - 1}`` (for the Taylor
+    method 1/S, 1/(S-1), ..., 1/2; :func:`_advance_lanes_taylor`)."""
     if stage == 0:
         return 0.0
-    return 1.0 / (stages + 1 - stage)
+    return 1.0 / divisors[stage - 1]
 
 
 @njit(cache=True)
-def taylor_lag_weights(table, dt, n_sub, stages, weights):
-    """:func:`bogie_env.actuators.lag_weights` for the S-stage Taylor method: row ``stages j + k``
-    at the time of stage k of substep j, row ``stages n_sub`` at dt."""
+def taylor_lag_weights(table, dt, n_sub, divisors, weights):
+    """:func:`bogie_env.actuators.lag_weights` for the S-stage method with stage ``divisors``: row
+    ``S j + k`` at the time of stage k of substep j, row ``S n_sub`` at dt."""
     h = dt / n_sub
+    stages = divisors.shape[0]
     for k in range(N_CHANNELS):
         rate = table[k, CH_DECAY_RATE]
         for j in range(n_sub):
             for stage in range(stages):
-                weights[stages * j + stage, k] = math.exp(-rate * (j * h + taylor_stage_time(stage, stages) * h))
+                weights[stages * j + stage, k] = math.exp(-rate * (j * h + taylor_stage_time(stage, divisors) * h))
         weights[stages * n_sub, k] = math.exp(-rate * dt)
 
 
@@ -206,19 +248,23 @@ def _advance_lanes(x, v0, accel, s0, dt, n_sub, lag, target, weights, channels, 
 
 
 @njit(cache=True, inline="always")
-def _advance_lanes_taylor(x, v0, accel, s0, dt, n_sub, stages, lag, target, weights, channels, track, p, out, status, scratch):
-    """:func:`_advance_lanes` with the S-stage Taylor method (``stages`` = S) instead of RK4.
+def _advance_lanes_taylor(x, v0, accel, s0, dt, n_sub, divisors, lag, target, weights, channels, track, p, out, status, scratch):
+    """:func:`_advance_lanes` with an S-stage method in Jameson's form (stage ``divisors`` d_0 ..
+    d_{S-1}, :data:`METHOD_DIVISORS`) instead of RK4.
 
-    Each substep of h is ``y_0 = x``, ``y_k = x + h / (S + 1 - k) f(y_{k-1})`` (k = 1 .. S), and
-    ``x <- y_S`` (Jameson's form): on a linear system ``x' = J x`` that is exactly
-    ``x <- sum_{k <= S} (h J)^k / k! x``, exp's Taylor polynomial of degree S, which keeps the
-    lightly damped wheelset modes' decay rates within 10 % at 2 substeps per 10 ms for S = 10
-    (RK4 needs 10: ``docs/studies/integrator.md``); on nonlinear and time-dependent terms the method is
-    of second order. Stage k evaluates the right-hand side at ``t + c_k h``,
-    ``c_k`` = :func:`taylor_stage_time`, with the channels' lag weights of row ``S j + k``
-    (:func:`taylor_lag_weights`). The mean power is the midpoint rule: the last stage's, at
-    ``t + h / 2``. One stage derivative (``scratch[K1]``) is all the method stores.
+    Each substep of h is ``y_0 = x``, ``y_{k+1} = x + h / d_k f(y_k)`` (k = 0 .. S - 1), and
+    ``x <- y_S``: on a linear system ``x' = J x`` that is ``x <- R(h J) x`` with the stability
+    polynomial ``R(z) = 1 + z/d_{S-1} (1 + z/d_{S-2} (... (1 + z/d_0)))``. The Taylor method's
+    divisors S, S-1, ..., 1 make R exp's Taylor polynomial of degree S, which keeps the lightly
+    damped wheelset modes' decay rates within 10 % at 2 substeps per 10 ms for S = 10 (RK4 needs
+    10: ``docs/studies/integrator.md``); v3's 14 divisors do at one substep. With d_{S-1} = 1 and
+    d_{S-2} = 2 the method is of second order on nonlinear and time-dependent terms. Stage k
+    evaluates the right-hand side at ``t + c_k h``, ``c_k`` = :func:`taylor_stage_time`, with the
+    channels' lag weights of row ``S j + k`` (:func:`taylor_lag_weights`). The mean power is the
+    midpoint rule: the last stage's, at ``t + h / 2``. One stage derivative (``scratch[K1]``) is
+    all the method stores.
     """
+    stages = divisors.shape[0]
     lanes = x.shape[1]
     h = dt / n_sub
     xs, u, q, yt, trig, speed, lagged = _step_scratch(scratch, out, lanes)
@@ -231,7 +277,7 @@ def _advance_lanes_taylor(x, v0, accel, s0, dt, n_sub, stages, lag, target, weig
             for lane in range(lanes):
                 xs[i, lane] = x[i, lane]
         for stage in range(stages):
-            ts = t + taylor_stage_time(stage, stages) * h
+            ts = t + taylor_stage_time(stage, divisors) * h
             w_row = stages * j + stage
             w_lagged, t_sampled = _stage_inputs(xs, ts, weights, w_row, w_lagged, t_sampled, lag, target, channels, track,
                                                 s0, v0, accel, p, lagged, u, q, yt, trig, speed)  # fmt: skip
@@ -239,7 +285,7 @@ def _advance_lanes_taylor(x, v0, accel, s0, dt, n_sub, stages, lag, target, weig
             if stage == stages - 1:
                 for lane in range(lanes):
                     _add_power(out[lane, OUT_POWER], u[:, lane], xs[:, lane], 1.0)
-            step = h / (stages - stage)
+            step = h / divisors[stage]
             for i in range(N_STATES):
                 for lane in range(lanes):
                     xs[i, lane] = x[i, lane] + step * k1[i, lane]
@@ -269,18 +315,20 @@ def rk4_amplification(z: np.ndarray) -> np.ndarray:
     return np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
 
 
-def taylor_polynomial(z: np.ndarray, stages: int) -> np.ndarray:
-    """R(z) of the S-stage Taylor method, ``sum_{k <= S} z^k / k!`` (Horner)."""
+def taylor_polynomial(z: np.ndarray, stages: int | str | tuple[float, ...] | np.ndarray) -> np.ndarray:
+    """R(z) of the method in Jameson's form with the stage divisors of ``stages``
+    (:func:`method_divisors`; an int S: the S-stage Taylor method, ``sum_{k <= S} z^k / k!``),
+    ``1 + z/d_{S-1} (1 + z/d_{S-2} (... (1 + z/d_0)))`` (Horner)."""
     z = np.asarray(z, dtype=complex)
     r = np.ones_like(z)
-    for k in range(stages, 0, -1):
-        r = 1 + z / k * r
+    for d in method_divisors(stages):
+        r = 1 + z / d * r
     return r
 
 
-def amplification(z: np.ndarray, stages: int = 0) -> np.ndarray:
-    """|R(z)| of the method with ``stages`` (:data:`METHOD_STAGES`; 0: classic RK4)."""
-    if stages == 0:
+def amplification(z: np.ndarray, stages: int | str | tuple[float, ...] | np.ndarray = 0) -> np.ndarray:
+    """|R(z)| of the method ``stages`` (:func:`method_divisors`; 0: classic RK4)."""
+    if method_divisors(stages).size == 0:
         return rk4_amplification(z)
     return np.abs(taylor_polynomial(z, stages))
 
@@ -322,14 +370,15 @@ def stable_substep(
     margin: float = 1.05,
     n_speeds: int = 7,
     extra_jacobian: np.ndarray | None = None,
-    stages: int = 0,
+    stages: int | str | tuple[float, ...] | np.ndarray = 0,
 ) -> StepChoice:
     """The fewest RK4 substeps per ``dt`` that keep every eigenvalue stable with a margin.
 
     The eigenvalues over ``[v_min, v_max]`` (m/s), at the equilibrium and in flange contact,
     scaled by ``margin * h``, must lie in RK4's stability region ``|R(z)| <= 1`` (or grow no
     faster than the exact ``exp(z)`` for the few eigenvalues in the right half-plane).
-    ``stages`` > 0: the same for the S-stage Taylor method (:data:`METHOD_STAGES`).
+    ``stages`` other than 0: the same for that method (:func:`method_divisors`: a name of
+    :data:`METHOD_DIVISORS`, stage divisors, or S for the S-stage Taylor method).
     """
     check_speed(v_min, "v_min")
     check_speed(v_max, "v_max")
@@ -395,8 +444,8 @@ def rk4_effective_eigenvalue(eigenvalues: np.ndarray, h: float) -> np.ndarray:
     return np.log(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24) / h
 
 
-def taylor_effective_eigenvalue(eigenvalues: np.ndarray, h: float, stages: int) -> np.ndarray:
-    """The eigenvalue the S-stage Taylor method with step h reproduces, ``log(R(h lambda)) / h``,
+def taylor_effective_eigenvalue(eigenvalues: np.ndarray, h: float, stages: int | str | tuple[float, ...] | np.ndarray) -> np.ndarray:
+    """The eigenvalue the method ``stages`` (:func:`taylor_polynomial`) with step h reproduces, ``log(R(h lambda)) / h``,
     on the branch nearest ``lambda``: a mode above half the substep's sampling rate
     (``|Im(lambda)| h > pi``, e.g. 100 Hz at 5-ms substeps) is aliased by the principal logarithm."""
     lam = np.asarray(eigenvalues, dtype=complex)
@@ -405,19 +454,21 @@ def taylor_effective_eigenvalue(eigenvalues: np.ndarray, h: float, stages: int) 
     return lam_h + 2j * np.pi * turns / h
 
 
-def eigenvalue_errors(eigenvalues: np.ndarray, h: float, zeta_max: float = 0.5, stages: int = 0) -> tuple[float, float]:
+def eigenvalue_errors(eigenvalues: np.ndarray, h: float, zeta_max: float = 0.5,
+                      stages: int | str | tuple[float, ...] | np.ndarray = 0) -> tuple[float, float]:
     """Largest relative errors of RK4's decay rate and frequency over the lightly damped modes.
 
     A mode counts if its damping ratio is below ``zeta_max``. The decay-rate error is
     ``|Re(l_h) - Re(l)| / max(|Re(l)|, 0.01 |l|)`` (a mode at the edge of stability is held to
-    1 % of its frequency), the frequency error ``|Im(l_h) - Im(l)| / |Im(l)|``. ``stages`` > 0:
-    the S-stage Taylor method's errors instead (:func:`taylor_effective_eigenvalue`).
+    1 % of its frequency), the frequency error ``|Im(l_h) - Im(l)| / |Im(l)|``. ``stages`` other
+    than 0: that method's errors instead (:func:`method_divisors`, :func:`taylor_effective_eigenvalue`).
     """
     lam = np.asarray(eigenvalues, dtype=complex)
     lam = lam[(np.abs(lam.imag) > 0) & (-lam.real < zeta_max * np.abs(lam))]
     if lam.size == 0:
         return 0.0, 0.0
-    lam_h = rk4_effective_eigenvalue(lam, h) if stages == 0 else taylor_effective_eigenvalue(lam, h, stages)
+    rk4 = method_divisors(stages).size == 0
+    lam_h = rk4_effective_eigenvalue(lam, h) if rk4 else taylor_effective_eigenvalue(lam, h, stages)
     lam_h = np.where(np.sign(lam_h.imag) == np.sign(lam.imag), lam_h, np.conj(lam_h))
     decay = np.abs(lam_h.real - lam.real) / np.maximum(np.abs(lam.real), 0.01 * np.abs(lam))
     freq = np.abs(lam_h.imag - lam.imag) / np.abs(lam.imag)
@@ -432,7 +483,7 @@ def accurate_substep(
     tolerance: float = 0.1,
     n_speeds: int = 7,
     extra_jacobian: np.ndarray | None = None,
-    stages: int = 0,
+    stages: int | str | tuple[float, ...] | np.ndarray = 0,
 ) -> StepChoice:
     """The fewest RK4 substeps per ``dt`` that are stable (:func:`stable_substep`) and keep the
     decay rate and frequency of every lightly damped mode (damping ratio < 0.5) within
@@ -440,8 +491,8 @@ def accurate_substep(
 
     Stability alone lets RK4 damp the lightly damped wheelset modes (about 85 Hz) several times
     more than they are damped, which hides instabilities of a loop with delay or gain error;
-    this criterion bounds that error. ``stages`` > 0: the same criterion for the S-stage Taylor
-    method (:data:`METHOD_STAGES`).
+    this criterion bounds that error. ``stages`` other than 0: the same criterion for that method
+    (:func:`method_divisors`).
     """
     stable = stable_substep(model, v_min, v_max, dt, n_speeds=n_speeds, extra_jacobian=extra_jacobian, stages=stages)
     speeds = np.linspace(v_min, v_max, n_speeds)

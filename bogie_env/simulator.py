@@ -34,7 +34,10 @@ from numba import njit, prange
 
 from .actuators import CH_DECAY_RATE, DAMPING, DELAY_SLOTS, FORCE, N_CHANNELS, advance_lag, channel_table, delayed_targets, lag_weights
 from .dynamics import N_COEFFICIENTS, N_STATES, P_L1, BogieModel, check_speed
-from .integrate import FASTMATH, N_SCRATCH, STATUS_OK, _advance_lanes, _advance_lanes_taylor, stable_substep, taylor_lag_weights
+from .integrate import (
+    FASTMATH, METHOD_DIVISORS, N_SCRATCH, STATUS_OK, _advance_lanes, _advance_lanes_taylor, method_divisors, stable_substep,
+    taylor_lag_weights,
+)  # fmt: skip
 from .lanes import LANES, stack_array
 from .track import ALIGNMENT_SAMPLES, N_TRACK_SAMPLES, TrackInput, TrackProfile, prefetch_track, sample_track
 
@@ -171,17 +174,18 @@ def interval_accel(motion, dt):
 # error_model="numpy": no division-by-zero checks (a zero divisor gives inf/nan, which the
 # row's finiteness check reports).
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def advance_rows(start, stop, rows, channels, track, dt, n_sub, stages):
+def advance_rows(start, stop, rows, channels, track, dt, n_sub, divisors):
     """Advance rows [start, stop) by one interval dt (see the module docstring) in n_sub substeps
-    of classic RK4 (``stages`` 0) or of the S-stage Taylor method (``stages`` = S,
-    :func:`bogie_env.integrate._advance_lanes_taylor`)."""
+    of classic RK4 (no stage ``divisors``) or of the S-stage method with those S stage divisors
+    (:data:`bogie_env.integrate.METHOD_DIVISORS`, :func:`bogie_env.integrate._advance_lanes_taylor`)."""
+    stages = divisors.shape[0]
     if stages == 0:
         weights = np.empty((3 * n_sub + 1, N_CHANNELS))
         lag_weights(channels, dt, n_sub, weights)
     else:
         weights = np.empty((stages * n_sub + 1, N_CHANNELS))
-        taylor_lag_weights(channels, dt, n_sub, stages, weights)
-    _advance_run(start, stop, rows, channels, track, dt, n_sub, stages, weights)
+        taylor_lag_weights(channels, dt, n_sub, divisors, weights)
+    _advance_run(start, stop, rows, channels, track, dt, n_sub, divisors, weights)
 
 
 # numba's private option _nrt=False: the row loops are compiled without reference counting. numba
@@ -190,21 +194,21 @@ def advance_rows(start, stop, rows, channels, track, dt, n_sub, stages):
 # (perf, docs/performance.md). They allocate nothing (lane blocks live on the stack); advance_rows,
 # which allocates the lag weights, holds the references. Arithmetic is untouched.
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
-def _advance_run(start, stop, rows, channels, track, dt, n_sub, stages, weights):
+def _advance_run(start, stop, rows, channels, track, dt, n_sub, divisors, weights):
     """The rows' loop of :func:`advance_rows`: blocks of LANES rows in SIMD lanes, the last
     rows (fewer than LANES) one at a time."""
     n0 = start
     while n0 + LANES <= stop:
-        _advance_block(LANES, n0, stop, rows, channels, track, dt, n_sub, stages, weights)
+        _advance_block(LANES, n0, stop, rows, channels, track, dt, n_sub, divisors, weights)
         n0 += LANES
     for n in range(n0, stop):
-        _advance_block(1, n, stop, rows, channels, track, dt, n_sub, stages, weights)
+        _advance_block(1, n, stop, rows, channels, track, dt, n_sub, divisors, weights)
 
 
 # One compilation per block width: the callers pass the width as a constant, which numba types as
 # a literal (the lane blocks' shapes must be compile-time constants).
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
-def _advance_block(lanes, n0, stop, rows, channels, track, dt, n_sub, stages, weights):
+def _advance_block(lanes, n0, stop, rows, channels, track, dt, n_sub, divisors, weights):
     """Rows [n0, n0 + lanes) as one lane block: gathered into lanes, advanced by
     :func:`bogie_env.integrate._advance_lanes`, scattered back. While they are advanced, the
     alignment under the next block's rows (up to ``stop``) is fetched into the cache."""
@@ -229,11 +233,11 @@ def _advance_block(lanes, n0, stop, rows, channels, track, dt, n_sub, stages, we
             xb[i, lane] = x[n, i]
         for i in range(N_COEFFICIENTS):
             pb[i, lane] = coefficients[n, i]
-    if stages == 0:
+    if divisors.shape[0] == 0:
         _advance_lanes(xb, v0, a, s0, dt, n_sub, lag[n0:end], target, weights, channels, track, pb, output[n0:end],
                        status[n0:end], scratch)  # fmt: skip
     else:
-        _advance_lanes_taylor(xb, v0, a, s0, dt, n_sub, stages, lag[n0:end], target, weights, channels, track, pb,
+        _advance_lanes_taylor(xb, v0, a, s0, dt, n_sub, divisors, lag[n0:end], target, weights, channels, track, pb,
                               output[n0:end], status[n0:end], scratch)  # fmt: skip
     last = weights.shape[0] - 1  # the weights at dt
     for lane in range(lanes):
@@ -250,17 +254,17 @@ def _advance_block(lanes, n0, stop, rows, channels, track, dt, n_sub, stages, we
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _advance_serial(rows, channels, track, dt, n_sub, stages):
-    advance_rows(np.int64(0), rows[0].shape[0], rows, channels, track, dt, n_sub, stages)  # int64, not Literal[0]: one compiled signature
+def _advance_serial(rows, channels, track, dt, n_sub, divisors):
+    advance_rows(np.int64(0), rows[0].shape[0], rows, channels, track, dt, n_sub, divisors)  # int64, not Literal[0]: one compiled signature
 
 
 @njit(cache=True, fastmath=FASTMATH, parallel=True)
-def _advance_parallel(rows, channels, track, dt, n_sub, stages):
+def _advance_parallel(rows, channels, track, dt, n_sub, divisors):
     n_rows = rows[0].shape[0]
     n_chunks = min(n_rows, N_CHUNKS)
     for c in prange(n_chunks):
         start, stop = chunk_bounds(n_rows, n_chunks, c)
-        advance_rows(start, stop, rows, channels, track, dt, n_sub, stages)
+        advance_rows(start, stop, rows, channels, track, dt, n_sub, divisors)
 
 
 @njit(cache=True, fastmath=FASTMATH)
@@ -271,7 +275,7 @@ def _sample_rows(rows, motion, coefficients, track, track_sample):
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _run(rows, channels, track, dt, n_sub, stages, n_steps, record_every, states_out, speeds_out):
+def _run(rows, channels, track, dt, n_sub, divisors, n_steps, record_every, states_out, speeds_out):
     """n_steps intervals on the calling thread, recording every ``record_every`` (before the
     step) and at the end; stops after a step that leaves any row non-finite. Returns the
     number of records."""
@@ -282,7 +286,7 @@ def _run(rows, channels, track, dt, n_sub, stages, n_steps, record_every, states
             states_out[n_rec] = x
             speeds_out[n_rec] = motion[:, M_SPEED]
             n_rec += 1
-        advance_rows(np.int64(0), x.shape[0], rows, channels, track, dt, n_sub, stages)  # int64, not Literal[0]: one compiled signature
+        advance_rows(np.int64(0), x.shape[0], rows, channels, track, dt, n_sub, divisors)  # int64, not Literal[0]: one compiled signature
         for n in range(x.shape[0]):
             if status[n] != STATUS_OK:
                 return n_rec
@@ -305,8 +309,8 @@ class BatchSimulator:
             channel takes force and damping targets, unsaturated, with ``lag_tau``.
         lag_tau: first-order lag time constant of each channel, s, for the default table.
         n_sub: substeps per interval; default from the spectrum over ``speed_range``.
-        stages: the integration method (:data:`bogie_env.integrate.METHOD_STAGES`): 0 classic
-            RK4, S the S-stage Taylor method.
+        stages: the integration method (:func:`bogie_env.integrate.method_divisors`): 0 classic
+            RK4, S the S-stage Taylor method, or a name of :data:`bogie_env.integrate.METHOD_DIVISORS`.
         num_threads: threads for large batches (default :func:`default_num_threads`).
     """
 
@@ -321,7 +325,7 @@ class BatchSimulator:
         lag_tau: np.ndarray | float = 0.0,
         n_sub: int | None = None,
         num_threads: int | None = None,
-        stages: int = 0,
+        stages: int | str = 0,
     ) -> None:
         if int(n) < 1:
             raise ValueError(f"BatchSimulator: n = {n} must be >= 1")
@@ -336,10 +340,17 @@ class BatchSimulator:
         self.n = int(n)
         self.dt = float(dt)
         self.speed_range = (lo, hi)
-        if stages != 0 and not (isinstance(stages, int) and 2 <= stages <= 64):
-            raise ValueError(f"BatchSimulator: stages = {stages!r} must be 0 (RK4) or an integer in [2, 64]")
-        self.stages = int(stages)
-        self.step_choice = stable_substep(model, lo, hi, dt, stages=self.stages) if n_sub is None else None
+        if not isinstance(stages, (int, str)) or isinstance(stages, bool):
+            raise ValueError(f"BatchSimulator: stages = {stages!r} must be 0 (RK4), an integer in [2, 64] (the Taylor "
+                             f"method) or a method name ({', '.join(METHOD_DIVISORS)})")  # fmt: skip
+        try:
+            #: the method's stage divisors (float64; empty for RK4), which the kernels take
+            self.divisors = method_divisors(stages)
+        except ValueError as error:
+            raise ValueError(f"BatchSimulator: {error}") from None
+        #: stages per substep (0: classic RK4)
+        self.stages = int(self.divisors.size)
+        self.step_choice = stable_substep(model, lo, hi, dt, stages=self.divisors) if n_sub is None else None
         self.n_sub = int(n_sub) if n_sub is not None else self.step_choice.n_sub
         self.track = track if isinstance(track, TrackInput) else TrackInput() if track is None else TrackInput(track)
         self._track = self.track.compiled()
@@ -444,7 +455,7 @@ class BatchSimulator:
     def advance(self) -> np.ndarray:
         """Advance every bogie by ``dt`` with the commands in :attr:`command`; returns the status."""
         self.loops.run(_advance_serial, _advance_parallel, self.rows, self.channels, self._track, self.dt, self.n_sub,
-                       self.stages)  # fmt: skip
+                       self.divisors)  # fmt: skip
         return self.status
 
     def step(self, force_target: np.ndarray | None = None, damping_target: np.ndarray | None = None) -> np.ndarray:
@@ -465,6 +476,6 @@ class BatchSimulator:
         states = np.empty((n_records, self.n, N_STATES))
         speeds = np.empty((n_records, self.n))
         self.command[:] = 0.0
-        count = _run(self.rows, self.channels, self._track, self.dt, self.n_sub, self.stages, int(n_steps), record_every, states,
+        count = _run(self.rows, self.channels, self._track, self.dt, self.n_sub, self.divisors, int(n_steps), record_every, states,
                      speeds)  # fmt: skip
         return states[:count], speeds[:count]

@@ -15,7 +15,10 @@ solve with ``W = I - gamma h A``. Candidates (one 10-ms env step = ``n_sub`` sub
 - ``ros3p``: Lang and Verwer's ROS3P (third order with the exact Jacobian, A-stable);
 - ``tayS`` (S = 8, 10, 12, 16): an explicit S-stage method whose stability polynomial is the
   degree-S Taylor polynomial of exp (Jameson's form, ``y_k = x + h / (S + 1 - k) f(y_{k-1})``):
-  order S on linear problems, order 2 on nonlinear ones, no frozen matrix.
+  order S on linear problems, order 2 on nonlinear ones, no frozen matrix;
+- ``poly14``: v3's 14-stage method in the same form with the stage divisors of
+  ``bogie_env.integrate.METHOD_DIVISORS`` (a stability polynomial designed for this spectrum,
+  ``studies/stability_polynomial.py``): order 2.
 
 Parts:
 
@@ -36,7 +39,7 @@ Parts:
 4. ``env``: the v1 ramp's hunting onset in the env (``studies/step_convergence.py``'s measured
    table: passive, and the gain-scheduled LQR with one and two steps of delay) with RK4 at 10
    and 20 substeps and with the 10-stage Taylor method (``integration.method: taylor10``, v2)
-   at 2 and 4, against RK4 at 40.
+   at 2 and 4, against RK4 at 40; ``--env-method poly14``: v3's method at 1 and 2 instead.
 5. ``cost``: right-hand sides, matrix-vector products (20 x 20) and their flops per env step, and
    the measured time of a compiled single-row step of each (``--part cost``).
 
@@ -56,6 +59,7 @@ import numpy as np
 from numba import njit
 from scipy.linalg import expm
 
+from bogie_env.integrate import METHOD_DIVISORS
 from bogie_env.dynamics import N_STATES, P_DELTA, P_L1, BogieModel, rhs_row_call
 from bogie_env.envs import scenario as scenarios
 from bogie_env.envs.config import V1_RANDOMIZE
@@ -65,7 +69,7 @@ from bogie_env.track import TrackInput, alignment_profile, alignment_profile_at_
 
 KMH = 3.6
 DT = 0.01
-METHODS = ("rk4", "etd2rk", "etdrk4", "strang", "ros2", "ros3p", "tay8", "tay9", "tay10", "tay11", "tay12", "tay16")
+METHODS = ("rk4", "etd2rk", "etdrk4", "strang", "ros2", "ros3p", "tay8", "tay9", "tay10", "tay11", "tay12", "tay16", "poly14")
 GAMMA_ROS2 = 1.0 + 1.0 / np.sqrt(2.0)
 # ROS3P (Lang & Verwer 2001), Hairer-Wanner form: (I/(gamma h) - A) k_i = f(x + sum a_ij k_j) + sum c_ij k_j / h
 ROS3P = dict(gamma=0.7886751345948129, a21=1.267949192431123, a31=1.267949192431123, a32=0.0,
@@ -74,7 +78,7 @@ ROS3P = dict(gamma=0.7886751345948129, a21=1.267949192431123, a31=1.267949192431
 #: per substep: (right-hand sides, 20 x 20 matrix-vector products); LU solves are products with a
 #: precomputed inverse W^-1 (frozen W per speed, tabulated like the phi-functions)
 COUNTS = {"rk4": (4, 0), "etd2rk": (2, 3), "etdrk4": (4, 13), "strang": (2, 4), "ros2": (2, 2), "ros3p": (3, 3),
-          "tay8": (8, 0), "tay9": (9, 0), "tay10": (10, 0), "tay11": (11, 0), "tay12": (12, 0), "tay16": (16, 0)}
+          "tay8": (8, 0), "tay9": (9, 0), "tay10": (10, 0), "tay11": (11, 0), "tay12": (12, 0), "tay16": (16, 0), "poly14": (14, 0)}
 
 
 # ---------------------------------------------------------------------------------
@@ -160,15 +164,20 @@ def substep(fr: Frozen, f, x: np.ndarray, t: float) -> np.ndarray:
         k3 = fr.minv @ (f(x + c["a31"] * k1 + c["a32"] * k2, t + h) + (c["c31"] * k1 + c["c32"] * k2) / h)
         m1, m2, m3 = c["m"]
         return x + m1 * k1 + m2 * k2 + m3 * k3
-    if m.startswith("tay"):  # Jameson-type: y_k = x + h / (s + 1 - k) f(y_{k-1}), k = 1..s
-        stages = int(m[3:])
+    if _jameson(m):  # y_{k+1} = x + h / d_k f(y_k), d_k = S - k for tayS
+        divisors = METHOD_DIVISORS[m] if m in METHOD_DIVISORS else [float(int(m[3:]) - k) for k in range(int(m[3:]))]
         y, c = x, 0.0
-        for k in range(1, stages + 1):
-            alpha = 1.0 / (stages + 1 - k)
+        for d in divisors:
+            alpha = 1.0 / d
             y = x + alpha * h * f(y, t + c * h)
             c = alpha
         return y
     raise ValueError(m)
+
+
+def _jameson(method: str) -> bool:
+    """An explicit method in Jameson's form (no frozen matrix): tayS or a name of METHOD_DIVISORS."""
+    return method.startswith("tay") or (method in METHOD_DIVISORS and method != "rk4")
 
 
 def substep_map(method: str, j: np.ndarray, a: np.ndarray, h: float) -> np.ndarray:
@@ -332,7 +341,7 @@ def closed_loop_part(n_subs: list[int], methods: list[str], gains: list[float]) 
         aug = np.zeros((N_STATES + 4, N_STATES + 4))  # u as 4 constant states
         aug[:N_STATES, :N_STATES] = j
         aug[:N_STATES, N_STATES:] = b
-        fr_aug = Frozen(method, aug, DT / n) if method != "rk4" and not method.startswith("tay") else None
+        fr_aug = Frozen(method, aug, DT / n) if method != "rk4" and not _jameson(method) else None
         x = np.eye(N_STATES + 4)
         for _ in range(n):
             x = substep(fr_aug if fr_aug is not None else fr, lambda y, s_: aug @ y, x, 0.0)
@@ -509,21 +518,27 @@ def env_onsets(controller: str, conicity: float, method: str, n_sub: int, delay_
     return onset_speeds(controller, conicity, n_sub, delay_steps, seeds, method)
 
 
-def env_part(quick: bool) -> None:
+def env_part(quick: bool, method: str = "taylor10") -> None:
+    """Onsets with RK4 at 10 (v1) and 20 substeps, the env ``method`` at the substeps its env
+    version picks (taylor10: 2, v2; poly14: 1, v3) and at twice that, RK4 at 40 (reference)."""
+    from bogie_env.envs.config import make_config
+    from bogie_env.envs.task import HuntingTask
+
     conicities = [0.025, 0.1] if quick else [0.025, 0.05, 0.1, 0.2, 0.3]
     seeds = [0, 1] if quick else [0, 1, 2, 3]
-    steps = (("rk4", 10), ("rk4", 20), ("taylor10", 2), ("taylor10", 4), ("rk4", 40))
-    print(f"hunting onset on the v1 ramp, mean over seeds {seeds} (km/h): RK4 at 10 (v1) and 20 substeps, the 10-stage Taylor"
-          " method at 2 (v2) and 4, RK4 at 40 (reference)")
-    print(f"{'controller':<10} {'conicity':>8} {'delay':>5}  " + "  ".join(f"{m}x{n:<3d}" for m, n in steps)
-          + "  |v2 - v2 half| |v2 - ref| |v1 - ref|")  # fmt: skip
+    n = HuntingTask(1, make_config({"integration": {"method": method}}, variant="v1")).n_sub
+    steps = (("rk4", 10), ("rk4", 20), (method, n), (method, 2 * n), ("rk4", 40))
+    print(f"hunting onset on the v1 ramp, mean over seeds {seeds} (km/h): RK4 at 10 (v1) and 20 substeps, {method}"
+          f" at {n} (its env version) and {2 * n}, RK4 at 40 (reference)")  # fmt: skip
+    print(f"{'controller':<10} {'conicity':>8} {'delay':>5}  " + "  ".join(f"{m}x{k:<3d}" for m, k in steps)
+          + "  |env - env half| |env - ref| |v1 - ref|")  # fmt: skip
     for controller, delays in (("passive", [1]), ("lqr", [1, 2])):
         for lam in conicities:
             for delay in delays:
                 t0 = time.perf_counter()
-                means = [float(np.mean(env_onsets(controller, lam, m, n, delay, seeds))) for m, n in steps]
+                means = [float(np.mean(env_onsets(controller, lam, m, k, delay, seeds))) for m, k in steps]
                 print(f"{controller:<10} {lam:>8g} {delay * 10:>3d}ms  " + "  ".join(f"{x:11.1f}" for x in means)
-                      + f"  {abs(means[2] - means[3]):13.2f} {abs(means[2] - means[4]):10.2f} {abs(means[0] - means[4]):10.2f}"
+                      + f"  {abs(means[2] - means[3]):16.2f} {abs(means[2] - means[4]):11.2f} {abs(means[0] - means[4]):10.2f}"
                       + f"   ({time.perf_counter() - t0:.0f} s)", flush=True)  # fmt: skip
 
 
@@ -595,6 +610,7 @@ def main() -> None:
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--own-jacobian", action="store_true", help="spectral: A from each bogie's own Jacobian (per-row tables)")
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--env-method", default="taylor10", help="env: the env's integration.method to check (poly14: v3)")
     args = parser.parse_args()
     n_subs = [int(s) for s in args.n_sub.split(",")]
     methods = args.methods.split(",")
@@ -607,7 +623,7 @@ def main() -> None:
     elif args.part == "nonlinear":
         nonlinear_part(n_subs, methods, args.quick)
     elif args.part == "env":
-        env_part(args.quick)
+        env_part(args.quick, args.env_method)
     else:
         cost_part()
 

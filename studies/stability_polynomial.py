@@ -7,11 +7,12 @@ them is reached, e.g. by ``y_k = x + a_k h f(y_{k-1})`` with ``a_k`` the ratios 
 For each substep count and stage count this asks a linear program whether some choice of
 ``c_3 .. c_S`` meets the criterion the env's step choice uses (``HuntingTask.step_choice``):
 
-- stability: ``|R(1.05 h lambda)| <= max(1, exp(1.1 Re(1.05 h lambda)))`` at every eigenvalue of
+- stability: ``|R(1.05 h lambda)| <= max(1, exp(g Re(1.05 h lambda)))`` at every eigenvalue of
   the criterion's Jacobians (``HuntingTask.criterion_models``: 15 bogies, 7 speeds, at the
-  equilibrium and in flange contact). This is *looser* than ``integrate.stable_substep``, which
-  lets a growing mode grow no faster than exactly (here: up to 10 % faster, the accuracy
-  tolerance), so an infeasible answer is stronger than the env's own rule needs;
+  equilibrium and in flange contact). With the default ``--growth`` g = 1.1 this is *looser*
+  than ``integrate.stable_substep``, which lets a growing mode grow no faster than exactly (here:
+  up to 10 % faster, the accuracy tolerance), so an infeasible answer is stronger than the env's
+  own rule needs; ``--growth 1.0`` is the env's rule itself (what v3's method was designed with);
 - accuracy: every lightly damped mode's decay rate and frequency within 10 %, as in
   ``integrate.eigenvalue_errors``, linearised in ``(R - exp) / exp`` and scaled by a free factor
   ``t`` that the program minimises (``t`` <= 1 meets the criterion to first order; the exact
@@ -26,6 +27,10 @@ cuts do not settle within the rounds is reported "unsettled", which proves nothi
 
     python studies/stability_polynomial.py                       # v2's config, 1-6 substeps
     python studies/stability_polynomial.py --n-sub 1,2 --show     # and the coefficients
+    python studies/stability_polynomial.py --growth 1.0 --n-sub 1 --show   # v3's method (poly14)
+
+``--show`` prints the coefficients ``c_k`` and the stage divisors ``d_k = c_{S-k-1} / c_{S-k}``
+of Jameson's form (``integrate.METHOD_DIVISORS``).
 """
 
 from __future__ import annotations
@@ -67,7 +72,8 @@ def mode_errors(c: np.ndarray, h: float, light: np.ndarray) -> tuple[float, floa
     return float(np.max(decay)), float(np.max(np.abs(lam_h.imag - light.imag) / np.abs(light.imag)))
 
 
-def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.1, rounds: int = 60):
+def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.1, rounds: int = 60,
+           growth: float = GROWTH):
     """(c_0 .. c_S, t, (decay error, frequency error)) of the most accurate stable polynomial of
     degree ``stages``; ``"infeasible"`` when the relaxation has no solution (a certificate); or
     ``"unsettled"`` when the cuts did not reach an exactly stable polynomial in ``rounds`` (no
@@ -75,7 +81,7 @@ def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.
     light = eigenvalues[(eigenvalues.imag > 0) & (-eigenvalues.real < 0.5 * np.abs(eigenvalues))]
     zs = MARGIN * h * eigenvalues
     zs = np.unique(np.round(zs[zs.imag >= 0], 12))
-    bound = np.maximum(1.0, np.exp(GROWTH * zs.real)) + 1e-13
+    bound = np.maximum(1.0, np.exp(growth * zs.real)) + 1e-13
     powers = np.arange(3, stages + 1)
     fixed = lambda z: 1 + z + z**2 / 2  # noqa: E731
     rows, rhs = [], []
@@ -120,7 +126,9 @@ def main() -> None:
     parser.add_argument("--variant", default="v2")
     parser.add_argument("--n-sub", default="1,2,3,4,5,6", help="substeps per env step to try")
     parser.add_argument("--max-stages", type=int, default=16)
-    parser.add_argument("--show", action="store_true", help="print the coefficients found")
+    parser.add_argument("--show", action="store_true", help="print the coefficients and stage divisors found")
+    parser.add_argument("--growth", type=float, default=GROWTH,
+                        help="a growing mode may grow this many times faster (1.0: the env's own rule)")
     args = parser.parse_args()
     eigenvalues, dt = criterion_eigenvalues(args.variant)
     print(f"{eigenvalues.size} eigenvalues, spectral radius {np.max(np.abs(eigenvalues)):.0f} 1/s, dt {dt * 1e3:g} ms")
@@ -129,7 +137,7 @@ def main() -> None:
         h = dt / n_sub
         verdicts = []
         for stages in range(3, args.max_stages + 1):
-            found = design(eigenvalues, h, stages)
+            found = design(eigenvalues, h, stages, growth=args.growth)
             if isinstance(found, str):
                 verdicts.append(f"{stages}: {found}")
                 continue
@@ -141,6 +149,7 @@ def main() -> None:
                   f"step, decay error {decay:.4f}, frequency error {freq:.4f})", flush=True)  # fmt: skip
             if args.show:
                 print("  c =", ", ".join(f"{x:.10g}" for x in c))
+                print("  divisors =", ", ".join(f"{float(c[k - 1] / c[k])!r}" for k in range(stages, 0, -1)))
             break
         else:
             print(f"{n_sub} substeps: {'; '.join(verdicts)}; none found up to S = {args.max_stages}", flush=True)

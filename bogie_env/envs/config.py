@@ -28,11 +28,12 @@ OBSERVATION_TYPES = ("sensors", "state")
 #: of every lightly damped mode within ``integration.tolerance``; v1). ``integration.n_sub``
 #: fixes the substeps per env step instead (convergence studies).
 STEP_CRITERIA = ("stability", "accuracy")
-#: The integration method (``integration.method``): "rk4", classic RK4 (v0, v1), or "taylor10",
+#: The integration method (``integration.method``): "rk4", classic RK4 (v0, v1); "taylor10",
 #: a 10-stage explicit method whose stability polynomial is exp's degree-10 Taylor polynomial
-#: (v2; ``bogie_env.integrate._advance_lanes_taylor``, docs/studies/integrator.md). The step
-#: criterion applies to the method chosen.
-INTEGRATION_METHODS = ("rk4", "taylor10")
+#: (v2); or "poly14", a 14-stage explicit method of second order whose stability polynomial was
+#: designed for the bogie's spectrum (v3; ``bogie_env.integrate.METHOD_DIVISORS``,
+#: docs/studies/integrator.md). The step criterion applies to the method chosen.
+INTEGRATION_METHODS = ("rk4", "taylor10", "poly14")
 _ACTUATOR_DEFAULTS = {c.name: dict(c.defaults) for c in ACTUATOR_CHANNELS}
 
 
@@ -360,6 +361,19 @@ def _v2(actuators: dict[str, Any]) -> dict[str, Any]:
 VARIANTS.update({
     "v2": _v2(copy.deepcopy(_ACTUATOR_DEFAULTS)),
     "v2_passive": _v2(passive_actuators()),
+})
+
+
+
+#: v3 (Bogie/Hunting-v3): v1's task integrated with the 14-stage designed method, the substeps chosen
+#: by the same accuracy criterion (1 per 10-ms step: 14 right-hand sides; v2 needs 20, RK4 40).
+def _v3(actuators: dict[str, Any]) -> dict[str, Any]:
+    return {**_v1(actuators), "integration": {"step_criterion": "accuracy", "method": "poly14"}}
+
+
+VARIANTS.update({
+    "v3": _v3(copy.deepcopy(_ACTUATOR_DEFAULTS)),
+    "v3_passive": _v3(passive_actuators()),
 })
 
 

@@ -49,6 +49,10 @@ IDS: dict[str, str | None] = {
     # right-hand sides per env step instead of 40 (docs/studies/integrator.md)
     "Bogie/Hunting-v2": "v2",
     "Bogie/HuntingPassive-v2": "v2_passive",
+    # v1's task with a 14-stage method designed for the bogie's spectrum, at the same accuracy
+    # criterion: one substep, 14 right-hand sides per env step (docs/studies/integrator.md)
+    "Bogie/Hunting-v3": "v3",
+    "Bogie/HuntingPassive-v3": "v3_passive",
 }
 
 

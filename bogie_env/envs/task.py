@@ -46,7 +46,9 @@ from ..actuators import (
     saturation,
 )
 from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, _guiding_forces_row, frame_lateral_accel, state_index
-from ..integrate import FASTMATH, METHOD_STAGES, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, stable_substep
+from ..integrate import (
+    FASTMATH, METHOD_STAGES, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, method_divisors, stable_substep,
+)  # fmt: skip
 from ..params import BogieParams, ConfigError
 from ..simulator import (
     M_ACCEL,
@@ -335,11 +337,11 @@ def _task_row(n, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, 
 
 # Not inlined: the serial call and the parallel loop run this one compilation of a run of rows.
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing):
+def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, divisors, action, task_rows, cfg, state_scales, health, sensing):
     """One env step of rows [start, stop): actions -> commands (through each row's actuator
     health) -> the simulator's interval -> task -> sensors (``sensing``: :meth:`HuntingTask.sensing`)."""
     _commands(start, stop, sim_rows, channels, action, health)
-    advance_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages)
+    advance_rows(start, stop, sim_rows, channels, track, dt, n_sub, divisors)
     scratch = np.empty((2, N_STATES))
     details = np.empty((2, len(DETAIL_NAMES)))
     _task_run(start, stop, sim_rows, channels, dt, task_rows, cfg, state_scales, scratch, details)
@@ -387,18 +389,18 @@ def _clip_actions(action, out):
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing):
+def _step_serial(action_in, sim_rows, channels, track, dt, n_sub, divisors, action, task_rows, cfg, state_scales, health, sensing):
     """Check and clip the actions, then one env step of every row on the calling thread;
     returns -1, or the flat index of a non-finite action (nothing stepped)."""
     bad = _clip_actions(action_in, action)
     if bad < 0:
-        _step_rows(np.int64(0), action.shape[0], sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales,
+        _step_rows(np.int64(0), action.shape[0], sim_rows, channels, track, dt, n_sub, divisors, action, task_rows, cfg, state_scales,
                    health, sensing)  # int64 as in the parallel loop: one compiled signature
     return bad
 
 
 #: The serial step's arguments after the actions, by name (:class:`StepArgs`).
-STEP_ARG_NAMES = ("sim_rows", "channels", "track", "dt", "n_sub", "stages", "action", "task_rows", "cfg", "state_scales", "health",
+STEP_ARG_NAMES = ("sim_rows", "channels", "track", "dt", "n_sub", "divisors", "action", "task_rows", "cfg", "state_scales", "health",
                   "sensing")  # fmt: skip
 
 
@@ -421,25 +423,25 @@ structref.define_proxy(StepArgs, _StepArgsType, list(STEP_ARG_NAMES))
 @njit(cache=True, fastmath=FASTMATH)
 def _step_serial_packed(action_in, k):
     """:func:`_step_serial` with its fixed arguments in one :class:`StepArgs`."""
-    return _step_serial(action_in, k.sim_rows, k.channels, k.track, k.dt, k.n_sub, k.stages, k.action, k.task_rows, k.cfg,
+    return _step_serial(action_in, k.sim_rows, k.channels, k.track, k.dt, k.n_sub, k.divisors, k.action, k.task_rows, k.cfg,
                         k.state_scales, k.health, k.sensing)  # fmt: skip
 
 
 @njit(cache=True, fastmath=FASTMATH, parallel=True)
-def _step_parallel(sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing):
+def _step_parallel(sim_rows, channels, track, dt, n_sub, divisors, action, task_rows, cfg, state_scales, health, sensing):
     n_rows = action.shape[0]
     n_chunks = min(n_rows, N_CHUNKS)
     for c in prange(n_chunks):
         start, stop = chunk_bounds(n_rows, n_chunks, c)
-        _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing)
+        _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, divisors, action, task_rows, cfg, state_scales, health, sensing)
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _step_checked_parallel(action_in, sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing):
+def _step_checked_parallel(action_in, sim_rows, channels, track, dt, n_sub, divisors, action, task_rows, cfg, state_scales, health, sensing):
     """:func:`_step_serial` with the rows on the thread pool."""
     bad = _clip_actions(action_in, action)
     if bad < 0:
-        _step_parallel(sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, state_scales, health, sensing)
+        _step_parallel(sim_rows, channels, track, dt, n_sub, divisors, action, task_rows, cfg, state_scales, health, sensing)
     return bad
 
 
@@ -567,10 +569,12 @@ class HuntingTask:
         extra = damping_jacobian(self.model.input_matrix(), max_damping) if np.any(max_damping) else None
         #: the integration method's stages per substep (METHOD_STAGES; 0: classic RK4)
         self.stages = METHOD_STAGES[c["integration"]["method"]]
+        #: and its stage divisors (METHOD_DIVISORS; empty for RK4)
+        self.divisors = method_divisors(c["integration"]["method"])
         self.step_choice = self._step_choice(lo, hi, extra)
         self.n_sub = self.step_choice.n_sub
         self.sim = BatchSimulator(self.model, n, c["dt"], (lo, hi), self.track_input, self.channels, n_sub=self.n_sub,
-                                  num_threads=c["num_threads"], stages=self.stages)  # fmt: skip
+                                  num_threads=c["num_threads"], stages=c["integration"]["method"])  # fmt: skip
         self.loops = LoopChooser(n, self.sim.num_threads)
         self._packed_step_args: StepArgs | None = None  # built at the first serial-only step
         # the task's per-row arrays
@@ -628,8 +632,8 @@ class HuntingTask:
         if ig["n_sub"] is not None:
             return StepChoice(dt / ig["n_sub"], ig["n_sub"], float("nan"), float("nan"))
         if ig["step_criterion"] == "stability":
-            return stable_substep(self.model, lo, hi, dt, extra_jacobian=extra, stages=self.stages)
-        choices = [accurate_substep(m, lo, hi, dt, ig["tolerance"], extra_jacobian=extra, stages=self.stages)
+            return stable_substep(self.model, lo, hi, dt, extra_jacobian=extra, stages=self.divisors)
+        choices = [accurate_substep(m, lo, hi, dt, ig["tolerance"], extra_jacobian=extra, stages=self.divisors)
                    for m in self.criterion_models()]  # fmt: skip
         return max(choices, key=lambda choice: choice.n_sub)
 
@@ -932,7 +936,7 @@ class HuntingTask:
         """The step kernels' arguments after the actions (:data:`STEP_ARG_NAMES`). Packed once, at
         the first step, for the calling thread's loop: arrays replaced after that are not seen."""
         sim = self.sim
-        return (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, sim.stages, self.actions, self._task_rows, self.settings,
+        return (sim.rows, self.channels, sim._track, sim.dt, sim.n_sub, sim.divisors, self.actions, self._task_rows, self.settings,
                 self.state_scales, self.health, self.sensing)  # fmt: skip
 
     def _add_noise(self, rows: np.ndarray) -> None:
