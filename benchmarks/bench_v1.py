@@ -22,6 +22,10 @@ what the observation's frame acceleration costs since it stopped evaluating the 
 the calling thread (run it with ``BOGIE_NUM_THREADS=1``), beside its pieces: the commands, the
 simulator's interval, the task's reward, termination and observation, and the sensor model.
 
+``--resets`` steps v3 and v0 at N = 4096 for ``--seconds`` as the default run does and reports
+the share of the wall clock spent in ``reset_rows`` (episodes that end start again in place, one
+row at a time in Python), its time per row, and the rate without it.
+
 ``--single`` times the single env of each id the way a Gymnasium user steps it
 (``bench_env.rate_single``: zero actions, resets included) beside Gymnasium's Pendulum-v1, raw
 (``env.unwrapped``) and as ``gym.make`` returns it (with Gymnasium's wrappers), in ``--rounds``
@@ -33,6 +37,7 @@ ratios to Pendulum-v1 of one round are the figures.
     python benchmarks/bench_v1.py --single --rounds 2                       # single envs against Pendulum-v1
     python benchmarks/bench_v1.py --parts                                    # pieces of a v2 step, CPU time
     BOGIE_NUM_THREADS=1 python benchmarks/bench_v1.py --row-parts           # pieces of each version's step, per row
+    python benchmarks/bench_v1.py --resets                                   # the resets' share at N = 4096
     python benchmarks/bench_v1.py --cpu                                      # this tree, CPU time
     python benchmarks/bench_v1.py --cpu --trees /tmp/before . --rounds 3     # trees interleaved
 """
@@ -59,6 +64,31 @@ def rate(variant: str | None, n: int, seconds: float) -> tuple[float, int]:
 
 CASES = (("v0", 1, 2000), ("v1", 1, 1000), ("v2", 1, 1000), ("v3", 1, 1000), ("v0", 4096, 20), ("v1", 4096, 6), ("v2", 4096, 10),
          ("v3", 4096, 12))  # variant, N, steps per chunk
+
+
+def reset_share(seconds: float, n: int = 4096) -> None:
+    """--resets: the wall-clock share of resets while stepping v3 and v0 (module docstring)."""
+    import numpy as np
+
+    for variant in ("v3", None):
+        task = make_task(variant, n)
+        actions = np.zeros((n, task.action_dim))
+        steps = resets = 0
+        in_reset = 0.0
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            task.step(actions)
+            steps += 1
+            done = np.nonzero(task.done)[0]
+            if done.size:
+                t1 = time.perf_counter()
+                task.reset_rows(done)
+                in_reset += time.perf_counter() - t1
+                resets += done.size
+        wall = time.perf_counter() - t0
+        print(f"{variant or 'v0'}: {steps * n / wall / 1e6:.2f} M env-steps/s, {steps} steps, {resets} resets, resets "
+              f"{in_reset / wall:.0%} of the wall clock at {in_reset / max(resets, 1) * 1e3:.3f} ms per row; without them "
+              f"{steps * n / (wall - in_reset) / 1e6:.2f} M/s (load {os.getloadavg()[0]:.2f})", flush=True)  # fmt: skip
 
 
 def measure(chunks: int) -> dict:
@@ -288,7 +318,11 @@ def main() -> None:
     parser.add_argument("--parts", action="store_true", help="CPU time of a v2 step and two pieces of it (see the docstring)")
     parser.add_argument("--single", action="store_true", help="single envs against Pendulum-v1 (see the docstring)")
     parser.add_argument("--row-parts", action="store_true", help="CPU time per row of the step's pieces (see the docstring)")
+    parser.add_argument("--resets", action="store_true", help="the resets' share of the wall clock (see the docstring)")
     args = parser.parse_args()
+    if args.resets:
+        reset_share(args.seconds)
+        return
     if args.single:
         single_main(args.rounds)
         return
