@@ -20,7 +20,7 @@ from bogie_env.dynamics import BogieModel
 from bogie_env.integrate import (
     METHOD_DIVISORS, METHOD_STAGES, accurate_substep, method_divisors, stable_substep, taylor_polynomial,
 )  # fmt: skip
-from tests.test_integrator_v2 import _mode_decay, _run
+from tests.test_integrator_v2 import assert_follows_v1, assert_mode_decay, assert_second_order
 
 KMH = 3.6
 DT = 0.01
@@ -51,26 +51,13 @@ def test_one_substep_meets_the_criterion_where_taylor_of_the_same_degree_does_no
 
 @pytest.mark.parametrize("speed_kmh", [100.0, 350.0, 600.0])
 def test_wheelset_mode_decay_rate_within_criterion_at_one_substep(speed_kmh):
-    model = BogieModel()
-    measured, exact, predicted = _mode_decay(model, speed_kmh / KMH, 1, METHOD)
-    assert abs(measured - exact.real) <= 0.1 * abs(exact.real), (measured, exact)
-    assert abs(measured - predicted.real) <= 2e-3 * abs(exact.real), (measured, predicted)
+    assert_mode_decay(speed_kmh, 1, METHOD)
 
 
 def test_second_order_convergence_against_rk4_reference():
     """A 3-mm start at 300 km/h on perfect track, 1 s: max error of y1 against RK4 at 160
     substeps, relative to its max, at 1 .. 16 substeps."""
-    model = BogieModel()
-    speed = 300 / KMH
-    x0 = model.equilibrium(speed)
-    x0[0] += 3e-3
-    ref = _run(model, x0, speed, 160, 0, 100)
-    n_subs = np.array([1, 2, 4, 8, 16])
-    errors = np.array([np.max(np.abs(_run(model, x0, speed, n, METHOD, 100)[:, 0] - ref[:, 0])) for n in n_subs])
-    errors /= np.max(np.abs(ref[:, 0]))
-    assert np.all(errors[:-1] / errors[1:] >= 2.5), errors  # every halving
-    slope = -np.polyfit(np.log(n_subs), np.log(errors), 1)[0]
-    assert slope >= 1.8, (slope, errors)
+    errors = assert_second_order(METHOD, np.array([1, 2, 4, 8, 16]))
     assert errors[0] < 3e-2, errors
 
 
@@ -79,26 +66,7 @@ def test_v3_follows_v1_with_actuators():
     substep of a second-order method is less accurate on the time-dependent terms than v2's two
     (measured: lateral displacements 9.4e-5 m off against a range of 5.4e-3 m, 1.7 %; v2 0.3 %),
     so the bound is 3 % of the range where v2's is 1 %."""
-    from bogie_env.envs.config import make_config
-    from bogie_env.envs.task import HuntingTask
-
-    n = 4
-    runs = {}
-    for variant in ("v1", "v3"):
-        task = HuntingTask(n, make_config(variant=variant))
-        task.seed_rows(np.arange(n), [0, 1, 2, 3])
-        task.reset_rows(np.arange(n))
-        rng = np.random.default_rng(5)
-        power = []
-        for _ in range(200):
-            task.step(rng.uniform(-1, 1, (n, task.action_dim)))
-            power.append(task.sim.output[:, 1].copy())
-        runs[variant] = (task.sim.x.copy(), task.sim.output[:, 0].copy(), np.array(power))
-    (x1, f1, p1), (x3, f3, p3) = runs["v1"], runs["v3"]
-    lateral = [0, 8, 16]
-    assert np.max(np.abs(x3[:, lateral] - x1[:, lateral])) <= 3e-2 * np.max(np.abs(x1[:, lateral])) + 1e-6
-    assert np.max(np.abs(f3 - f1)) <= 1e-2 * np.max(np.abs(f1)) + 1.0
-    assert np.max(np.abs(np.mean(p3, axis=0) - np.mean(p1, axis=0))) <= 0.05 * np.max(np.abs(np.mean(p1, axis=0))) + 1.0
+    assert_follows_v1("v3", lateral_share=3e-2)
 
 
 def test_env_ids():
