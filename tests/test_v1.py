@@ -136,6 +136,41 @@ def test_sensor_biases_are_drawn_with_their_spread_and_per_seed():
     assert np.array_equal(S.draw_biases(cfg, np.random.default_rng(9)), S.draw_biases(cfg, np.random.default_rng(9)))
 
 
+@pytest.mark.parametrize("paired", [False, True])
+def test_sensor_noise_draws_are_independent_standard_normals(paired):
+    """Both ways of drawing (sensors.NOISE_DRAWS): per channel unit variance, zero mean, no
+    correlation between channels (the paired draw's cosine and sine branches included) or
+    between samples; normal tails (fraction beyond 2 sigma 0.0455). The planted bug of a paired
+    draw that reuses the cosine for the odd channel fails the correlation check."""
+    n_channels, samples = 5, 20000
+    table = np.zeros((n_channels, 2))
+    table[:, 0] = 1.0  # no filtering: each sample is the clean value plus noise
+    table[:, 1] = 1.0
+    obs, filt = np.zeros((1, n_channels)), np.zeros((1, n_channels))
+    state = np.array([12345], dtype=np.uint64)
+    rows, one, bias = np.array([0]), np.ones((1, n_channels)), np.zeros((1, n_channels))
+    draws = np.empty((samples, n_channels))
+    for k in range(samples):
+        obs[:] = 0.0
+        S.sense_rows(rows, obs, filt, bias, one, state, table, True, 100.0, paired)
+        draws[k] = obs[0]
+    tolerance = 4 / math.sqrt(samples)
+    assert np.all(np.abs(draws.mean(axis=0)) < tolerance)
+    assert np.all(np.abs(draws.std(axis=0) - 1) < tolerance)
+    corr = np.corrcoef(draws.T)
+    assert np.max(np.abs(corr - np.eye(n_channels))) < tolerance
+    lagged = np.corrcoef(draws[:-1, 0], draws[1:, 0])[0, 1]
+    assert abs(lagged) < tolerance
+    assert abs(np.mean(np.abs(draws) > 2) - 0.0455) < 0.005
+
+
+def test_sensor_noise_draws_are_checked_by_name():
+    with pytest.raises(ConfigError, match="'sensors.noise_draws' = 'both' is not allowed; allowed: per_channel, paired"):
+        make_config({"sensors": {"noise_draws": "both"}}, variant="v1")
+    assert make_config(variant="v3")["sensors"]["noise_draws"] == "paired"
+    assert make_config(variant="v2")["sensors"]["noise_draws"] == "per_channel"
+
+
 def test_sensor_filter_has_the_first_order_step_response():
     """A unit step sampled every dt: y_n = 1 - exp(-2 pi f_c n dt), the continuous filter's."""
     dt, fc = 0.01, 7.0

@@ -19,7 +19,7 @@ from ..params import CONFIG_DIR, FIELDS, BogieParams, ConfigError, load_params
 from ..track import ALIGNMENT_LEVELS
 from .routes import validate_route_config
 from .scenario import validate_randomize
-from .sensors import SENSOR_NAMES, SENSOR_SETTINGS, default_sensor_config
+from .sensors import NOISE_DRAWS, SENSOR_NAMES, SENSOR_SETTINGS, default_sensor_config
 
 ACTUATOR_MODES = MODES
 OBSERVATION_TYPES = ("sensors", "state")
@@ -237,6 +237,8 @@ def validate(config: dict) -> dict:
     se = c["sensors"]
     if not isinstance(se["enabled"], bool):
         raise ConfigError(f"config 'sensors.enabled' = {se['enabled']!r} must be true or false")
+    if se["noise_draws"] not in NOISE_DRAWS:
+        raise ConfigError(f"config 'sensors.noise_draws' = {se['noise_draws']!r} is not allowed; allowed: {', '.join(NOISE_DRAWS)}")
     se["noise_scale"] = _number("sensors.noise_scale", se["noise_scale"], 0.0, 100.0)
     se["bias_scale"] = _number("sensors.bias_scale", se["bias_scale"], 0.0, 100.0)
     for name in SENSOR_NAMES:
@@ -366,9 +368,11 @@ VARIANTS.update({
 
 
 #: v3 (Bogie/Hunting-v3): v1's task integrated with the 14-stage designed method, the substeps chosen
-#: by the same accuracy criterion (1 per 10-ms step: 14 right-hand sides; v2 needs 20, RK4 40).
+#: by the same accuracy criterion (1 per 10-ms step: 14 right-hand sides; v2 needs 20, RK4 40), and
+#: the sensor noise drawn in pairs (sensors.NOISE_DRAWS).
 def _v3(actuators: dict[str, Any]) -> dict[str, Any]:
-    return {**_v1(actuators), "integration": {"step_criterion": "accuracy", "method": "poly14"}}
+    return {**_v1(actuators), "integration": {"step_criterion": "accuracy", "method": "poly14"},
+            "sensors": {"enabled": True, "noise_draws": "paired"}}
 
 
 VARIANTS.update({

@@ -186,6 +186,9 @@ class BogieHuntingEnv(gym.Env):
       `sensors.noise_scale` on the noise densities and `sensors.bias_scale` on the biases (default
       1; 0 switches the noise or the bias off, 2 doubles it), the same as editing each
       `sensors.<channel>.noise_density` / `.bias`. `observation.noise` (see above) stays 0.
+      `sensors.noise_draws`: "per_channel" (v1, v2: one Box-Muller draw per channel and sample)
+      or "paired" (v3: both branches of one draw for two channels); the same statistics, other
+      sequences.
     - Actuators: `delay_steps` = 1 (10 ms loop delay) and `rate_limit` 200 kN/s (lateral),
       400 kN m/s (yaw channels), on top of the 10 Hz lag and the saturation of v0.
     - Track: alignment at the EN 13848-5 `alert` level (`track.level`; also `intervention`,

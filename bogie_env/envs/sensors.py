@@ -110,11 +110,16 @@ SENSOR_SETTINGS = ("noise_density", "bias", "bandwidth_hz")
 
 # Columns of the compiled sensor table (N_SENSED, 2): filter weight per sample, noise rms per sample.
 S_FILTER_WEIGHT, S_NOISE_RMS = range(2)
+#: How the sensor noise is drawn (``sensors.noise_draws``): "per_channel", one Box-Muller draw of
+#: two uniforms per channel and sample, its cosine branch (v1, v2); or "paired", both branches of
+#: one draw for two channels, half the logarithms and uniforms (v3). Both give independent
+#: standard normals; the sequences differ, so the choice is part of an env version.
+NOISE_DRAWS = ("per_channel", "paired")
 
 
 def default_sensor_config() -> dict[str, Any]:
     """The env config's ``sensors`` section: off (v0), and each channel's figures."""
-    out: dict[str, Any] = {"enabled": False, "noise_scale": 1.0, "bias_scale": 1.0}
+    out: dict[str, Any] = {"enabled": False, "noise_scale": 1.0, "bias_scale": 1.0, "noise_draws": "per_channel"}
     for s in SENSOR_MODELS:
         out[s.name] = s.defaults()
     return out
@@ -183,22 +188,34 @@ def standard_normal(state, n):
 
 
 @njit(cache=True, inline="always")
-def sense_row(n, obs, filtered, bias, scale, rng_state, table, start, bound):
+def sense_row(n, obs, filtered, bias, scale, rng_state, table, start, bound, paired=False):
     """Measure the clean observation ``obs[n, :N_SENSED]`` of row ``n`` in place (:func:`sense_rows`).
     A row's measurement depends on that row's arrays only, so rows may be measured in any
-    order or on any thread with the same bits."""
+    order or on any thread with the same bits. ``paired``: channels 2i and 2i + 1 take the
+    cosine and sine branches of one Box-Muller draw (:data:`NOISE_DRAWS`)."""
+    second = 0.0
     for j in range(table.shape[0]):
         clean = obs[n, j]
         if start:
             filtered[n, j] = clean
         else:
             filtered[n, j] += table[j, S_FILTER_WEIGHT] * (clean - filtered[n, j])
-        error = bias[n, j] + table[j, S_NOISE_RMS] * standard_normal(rng_state, n)
+        if not paired:
+            normal = standard_normal(rng_state, n)
+        elif j % 2 == 0:
+            u1 = _uniform(rng_state, n)
+            u2 = _uniform(rng_state, n)
+            radius = math.sqrt(-2.0 * math.log(u1))
+            normal = radius * math.cos(2.0 * math.pi * u2)
+            second = radius * math.sin(2.0 * math.pi * u2)
+        else:
+            normal = second
+        error = bias[n, j] + table[j, S_NOISE_RMS] * normal
         obs[n, j] = min(max(filtered[n, j] + error / scale[n, j], -bound), bound)
 
 
 @njit(cache=True)
-def sense_rows(rows, obs, filtered, bias, scale, rng_state, table, start, bound):
+def sense_rows(rows, obs, filtered, bias, scale, rng_state, table, start, bound, paired=False):
     """Measure the clean observations ``obs[n, :N_SENSED]`` of ``rows`` in place.
 
     ``filtered`` (N, N_SENSED) holds the filter states in observation units, ``bias`` (N,
@@ -206,4 +223,4 @@ def sense_rows(rows, obs, filtered, bias, scale, rng_state, table, start, bound)
     of one observation unit; ``start``: the rows' first sample (the filter starts settled).
     """
     for n in rows:
-        sense_row(n, obs, filtered, bias, scale, rng_state, table, start, bound)
+        sense_row(n, obs, filtered, bias, scale, rng_state, table, start, bound, paired)

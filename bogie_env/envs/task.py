@@ -351,10 +351,10 @@ def _step_rows(start, stop, sim_rows, channels, track, dt, n_sub, divisors, acti
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
 def _sense_run(start, stop, obs, sensing):
     """The sensor model (:func:`bogie_env.envs.sensors.sense_row`) of rows [start, stop) after their step; off: nothing."""
-    enabled, filtered, bias, scale, rng_state, table = sensing
+    enabled, filtered, bias, scale, rng_state, table, paired = sensing
     if enabled:
         for n in range(start, stop):
-            sense_row(n, obs, filtered, bias, scale, rng_state, table, False, OBS_BOUND)
+            sense_row(n, obs, filtered, bias, scale, rng_state, table, False, OBS_BOUND, paired)
 
 
 # The row loops without reference counting (numba's _nrt=False), as bogie_env.simulator._advance_run.
@@ -601,7 +601,7 @@ class HuntingTask:
         self.sensor_rng = np.zeros(n, dtype=np.uint64)
         #: what the compiled step measures each row with, after its interval (sensors.sense_row)
         self.sensing = (self.sensors_enabled, self.sensor_filter, self.sensor_bias, self.sensor_scale, self.sensor_rng,
-                        self.sensor_table)  # fmt: skip
+                        self.sensor_table, c["sensors"]["noise_draws"] == "paired")  # fmt: skip
 
     # ---- configuration ----------------------------------------------------------------------
     @property
@@ -707,7 +707,7 @@ class HuntingTask:
         self.observe(rows)
         if self.sensors_enabled:
             sense_rows(rows.astype(np.int64), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
-                       self.sensor_rng, self.sensor_table, True, OBS_BOUND)  # fmt: skip
+                       self.sensor_rng, self.sensor_table, True, OBS_BOUND, self.sensing[-1])  # fmt: skip
         self._add_noise(rows)
 
     def _checked_reset_options(self, options: Mapping[str, Any] | None) -> dict[str, Any]:
