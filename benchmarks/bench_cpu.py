@@ -51,7 +51,7 @@ def interval_loop(rows: int, seconds: float) -> None:
     task = HuntingTask(rows, num_threads=1)
     task.reset_rows(np.arange(rows))
     sim = task.sim
-    call = (sim.rows, sim.channels, sim._track, sim.dt, sim.n_sub, sim.stages)
+    call = (sim.rows, sim.channels, sim._track, sim.dt, sim.n_sub, sim.divisors)
     _advance_serial(*call)
     best_s = float("inf")
     end = time.perf_counter() + seconds

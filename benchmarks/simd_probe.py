@@ -51,7 +51,7 @@ def _run_width(lanes, rows, channels, track, dt, n_sub):
     lag_weights(channels, dt, n_sub, weights)
     stop = rows[0].shape[0]
     for n0 in range(0, stop, lanes):
-        _advance_block(lanes, n0, stop, rows, channels, track, dt, n_sub, 0, weights)  # stages 0: RK4
+        _advance_block(lanes, n0, stop, rows, channels, track, dt, n_sub, np.empty(0), weights)  # no stage divisors: RK4
 
 
 @njit

@@ -11,7 +11,8 @@ by one control interval ``dt`` in ``n_sub`` classic RK4 substeps. Within the int
 
 :func:`_advance_lanes_taylor` does the same with an S-stage explicit method whose stability
 polynomial is exp's degree-S Taylor polynomial (``integration.method: taylor10``,
-``Bogie/Hunting-v2``; ``docs/studies/integrator.md``); the criteria below take its stage count.
+``Bogie/Hunting-v2``; ``docs/studies/integrator.md``), or any stage divisors (``METHOD_DIVISORS``:
+v3's ``poly14``); the criteria below take the method.
 
 The one batch driver over rows is :mod:`bogie_env.simulator`. The step size is chosen from
 the measured spectrum (:func:`stable_substep`): every eigenvalue of the linearised model over

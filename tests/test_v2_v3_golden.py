@@ -1,0 +1,59 @@
+"""The -v2 and -v3 ids keep their trajectories bitwise.
+
+``tests/data/v2_v3_golden.npz`` was written by this file's ``__main__`` when v3 was added
+(observations, rewards, end states and actuator forces of seeded runs with seeded random
+actions, in the single env and the native vector env, as ``tests/test_v1_golden.py``). The
+kernels had just been changed to take stage divisors instead of a stage count; v2's trajectories
+(random actions, resets, 300 steps of v1, v2, v0 and v1_semi_active) were compared with the code
+before that change and were equal bit for bit. A change that moves a v2 or v3 trajectory by one
+bit fails here; such a change belongs in a new env id.
+
+    PYTHONPATH=<tree> python tests/test_v2_v3_golden.py   # writes the golden file (only for a new version)
+"""
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import bogie_env  # noqa: F401  (registers the ids)
+from tests.golden_runs import runs as golden_runs, vector_run
+
+GOLDEN = Path(__file__).parent / "data" / "v2_v3_golden.npz"
+IDS = ("Bogie/Hunting-v2", "Bogie/HuntingPassive-v2", "Bogie/Hunting-v3", "Bogie/HuntingPassive-v3")
+N_STEPS = 150
+
+
+def single_run(env_id: str) -> dict[str, np.ndarray]:
+    env = gym.make(env_id, config={"large_perturbation_probability": 0.5})
+    actions = np.random.default_rng(7).uniform(-1, 1, (N_STEPS,) + env.action_space.shape)
+    obs, _ = env.reset(seed=3)
+    observations, rewards, forces = [obs], [], []
+    for a in actions:
+        obs, reward, terminated, truncated, info = env.step(a)
+        observations.append(obs)
+        rewards.append(reward)
+        forces.append(info["actuator_force"])
+        if terminated or truncated:
+            obs, _ = env.reset()
+    return {"obs": np.array(observations), "reward": np.array(rewards), "force": np.array(forces),
+            "x": env.unwrapped.task.states.copy()}  # fmt: skip
+
+
+def runs() -> dict[str, np.ndarray]:
+    return golden_runs(IDS, single_run, N_STEPS)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_v2_v3_trajectories_are_bitwise_unchanged(env_id):
+    golden = np.load(GOLDEN)
+    for kind, run in (("single", single_run), ("vector", lambda e: vector_run(e, N_STEPS))):
+        for key, value in run(env_id).items():
+            name = f"{env_id}|{kind}|{key}"
+            np.testing.assert_array_equal(value, golden[name], err_msg=name)
+
+
+if __name__ == "__main__":
+    np.savez_compressed(GOLDEN, **runs())
+    print(f"wrote {GOLDEN}")
