@@ -13,32 +13,15 @@ bit fails here; such a change belongs in a new env id.
 
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
 import bogie_env  # noqa: F401  (registers the ids)
 from tests.golden_runs import runs as golden_runs, vector_run
+from tests.test_v1_golden import N_STEPS, single_run  # the same seeded runs as v1's
 
 GOLDEN = Path(__file__).parent / "data" / "v2_v3_golden.npz"
 IDS = ("Bogie/Hunting-v2", "Bogie/HuntingPassive-v2", "Bogie/Hunting-v3", "Bogie/HuntingPassive-v3")
-N_STEPS = 150
-
-
-def single_run(env_id: str) -> dict[str, np.ndarray]:
-    env = gym.make(env_id, config={"large_perturbation_probability": 0.5})
-    actions = np.random.default_rng(7).uniform(-1, 1, (N_STEPS,) + env.action_space.shape)
-    obs, _ = env.reset(seed=3)
-    observations, rewards, forces = [obs], [], []
-    for a in actions:
-        obs, reward, terminated, truncated, info = env.step(a)
-        observations.append(obs)
-        rewards.append(reward)
-        forces.append(info["actuator_force"])
-        if terminated or truncated:
-            obs, _ = env.reset()
-    return {"obs": np.array(observations), "reward": np.array(rewards), "force": np.array(forces),
-            "x": env.unwrapped.task.states.copy()}  # fmt: skip
 
 
 def runs() -> dict[str, np.ndarray]:
