@@ -31,3 +31,12 @@ def runs(ids, single_run: Callable, n_steps: int) -> dict[str, np.ndarray]:
             for key, value in run(env_id).items():
                 out[f"{env_id}|{kind}|{key}"] = value
     return out
+
+
+def assert_bitwise(golden_path, env_id: str, single_run: Callable, n_steps: int) -> None:
+    """``env_id``'s single-env and vector-env runs equal, bit for bit, what ``golden_path`` holds."""
+    golden = np.load(golden_path)
+    for kind, run in (("single", single_run), ("vector", lambda e: vector_run(e, n_steps))):
+        for key, value in run(env_id).items():
+            name = f"{env_id}|{kind}|{key}"
+            np.testing.assert_array_equal(value, golden[name], err_msg=name)

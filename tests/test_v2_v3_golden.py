@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import bogie_env  # noqa: F401  (registers the ids)
-from tests.golden_runs import runs as golden_runs, vector_run
+from tests.golden_runs import assert_bitwise, runs as golden_runs
 from tests.test_v1_golden import N_STEPS, single_run  # the same seeded runs as v1's
 
 GOLDEN = Path(__file__).parent / "data" / "v2_v3_golden.npz"
@@ -30,11 +30,7 @@ def runs() -> dict[str, np.ndarray]:
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_v2_v3_trajectories_are_bitwise_unchanged(env_id):
-    golden = np.load(GOLDEN)
-    for kind, run in (("single", single_run), ("vector", lambda e: vector_run(e, N_STEPS))):
-        for key, value in run(env_id).items():
-            name = f"{env_id}|{kind}|{key}"
-            np.testing.assert_array_equal(value, golden[name], err_msg=name)
+    assert_bitwise(GOLDEN, env_id, single_run, N_STEPS)
 
 
 if __name__ == "__main__":
