@@ -30,6 +30,21 @@ def rng():
     return np.random.default_rng(12345)
 
 
+def pytest_configure(config):
+    """On a cold numba cache (a clean clone) the xdist controller compiles the lane-block
+    integrator once, before the workers start; otherwise every worker compiles it at once (about
+    60 s of CPU each). With a warm cache this takes well under a second."""
+    if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
+        import time
+
+        from bogie_env.simulator import BatchSimulator
+
+        started = time.perf_counter()
+        BatchSimulator(BogieModel(BogieParams.paper()), 9).run(1)  # 9 rows: the lane blocks of 8 and of 1
+        if time.perf_counter() - started > 5.0:
+            print(f"numba: the integrator compiled once for the workers in {time.perf_counter() - started:.0f} s (cached)")
+
+
 def pytest_collection_modifyitems(config, items):
     """Tests that start a Ray cluster (10-20 s of start-up on 2 cores) run with the slow ones:
     `make test` stays within its 3 minutes, and CI runs them in `make test-slow`."""

@@ -57,6 +57,7 @@ def test_lqg_filter_is_stable(lqg_design):
         assert np.abs(np.linalg.eigvals(estimator)).max() < 1.0
 
 
+@pytest.mark.slow  # compiles its own kernels cold (60-100 s on a clean clone): make test stays within 3 minutes
 def test_v1_lqg_does_not_hold_the_bogie_against_sensor_biases():
     """Oracle: on perfect track, at rest and below hunting, the bogie's true equilibrium is
     centred and needs no force, whatever the sensors' constant offsets read. The v1 LQG (bias

@@ -34,6 +34,7 @@ def _unbalanced(v: float, radius: float, cant: float) -> float:
 
 
 # ---- zero-curvature limit --------------------------------------------------------------------------
+@pytest.mark.slow  # compiles its own kernels cold (60-100 s on a clean clone): make test stays within 3 minutes
 def test_straight_route_gives_bitwise_the_same_trajectory_as_no_route(paper_model):
     """An all-tangent route (zero curvature and cant everywhere) adds exact zeros."""
     tangent = route_from_dict({"name": "t", "segments": [{"type": "tangent", "length": 5000.0}]})

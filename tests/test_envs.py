@@ -98,6 +98,7 @@ def test_single_vector_and_sb3_envs_give_identical_trajectories():
     assert ends >= 6
 
 
+@pytest.mark.slow  # 5-10 s warm: make test stays within 3 minutes from a clean clone
 def test_batch_size_does_not_change_a_rows_trajectory():
     """Rows are independent: a row of a 260-env batch (thread pool) follows exactly the 4-env
     batch's row (calling thread)."""

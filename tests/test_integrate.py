@@ -94,6 +94,7 @@ def test_rk4_amplification_polynomial():
     assert rk4_amplification(2.8284j) == pytest.approx(1.0, abs=1e-3)  # imaginary-axis boundary
 
 
+@pytest.mark.slow  # 5-10 s warm: make test stays within 3 minutes from a clean clone
 def test_batch_rows_are_independent_and_bitwise_reproducible(paper_model):
     """The same row on the calling thread (1 row) and on the thread pool (300 rows, 64 chunks)."""
     x0 = perturbed(paper_model, 100.0)

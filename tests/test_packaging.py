@@ -11,6 +11,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 APPLICATION = ("bogie_agents", "stable_baselines3", "torch")
 
 
@@ -39,6 +41,7 @@ def test_library_modules_import_neither_the_agents_nor_sb3_nor_torch(tmp_path):
     assert not loaded & set(APPLICATION), sorted(loaded & set(APPLICATION))
 
 
+@pytest.mark.slow  # compiles its own kernels cold (60-100 s on a clean clone): make test stays within 3 minutes
 def test_make_vec_imports_neither_sb3_nor_torch(tmp_path):
     code = (
         "import gymnasium as gym\n"
@@ -181,6 +184,7 @@ NOT_FOR_CURVING = ("stable_baselines3", "torch", "gymnasium", "matplotlib", "con
                    "bogie_env.envs.hunting_env", "bogie_env.envs.task")  # fmt: skip
 
 
+@pytest.mark.slow  # compiles its own kernels cold (60-100 s on a clean clone): make test stays within 3 minutes
 def test_the_bogie_curving_command_imports_nothing_it_does_not_use(tmp_path):
     """The console script's steady-curving path (``bogie_agents.cli``, as ``bogie`` runs it)."""
     script = (

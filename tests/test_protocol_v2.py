@@ -189,6 +189,7 @@ def _intervention_columns(version: int) -> dict:
     return result["by_conicity"]
 
 
+@pytest.mark.slow  # 5-10 s warm: make test stays within 3 minutes from a clean clone
 def test_rough_track_forced_contact_does_not_set_passive_columns():
     """Passive on the EN 13848-5 intervention track, seeds 3 and 4: the track forces flange contact
     at every speed from 40 km/h (seed 3 touches in 1.7 % of the time at 40 km/h), so protocol v2
