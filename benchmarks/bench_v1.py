@@ -1,15 +1,15 @@
-"""The cost of v1, v2 and v3: env steps per second of Bogie/Hunting-v1, -v2 and -v3 against -v0, at N=1 and N=4096, in one run.
+"""The cost of v1-v4: env steps per second of Bogie/Hunting-v1, -v2, -v3 and -v4 against -v0, at N=1 and N=4096, in one run.
 
 Each case steps the task (``HuntingTask``, the compiled batch step both front-ends use) with
 zero actions for at least ``--seconds`` after a warm-up, episodes reset in place when done.
 v1 integrates with more substeps (accuracy criterion), adds the sensor model and the
 scenario's actuator health; the ratio is the cost of those. v2 is v1 with the 10-stage Taylor
 integrator at 2 substeps (20 right-hand sides per env step against v1's 40), v3 with the 14-stage
-designed method at 1 substep (14).
+designed method at 1 substep (14), v4 with the 12-stage one (12).
 
 ``--cpu`` instead reports env steps per CPU second on the calling thread, for comparing trees on
 a busy host: per tree and round a fresh process (``PYTHONPATH=tree``, ``BOGIE_NUM_THREADS=1``)
-steps v0 and v1 at N = 1 and 4096 and reports the best of ``--chunks`` chunks of
+steps v0-v4 at N = 1 and 4096 and reports the best of ``--chunks`` chunks of
 ``time.process_time``. The trees alternate within each round; the ratios between trees and
 between v0 and v1 in one run are the figures.
 
@@ -18,11 +18,11 @@ at N = 4096 beside two pieces of it: the full scalar right-hand side (with both 
 contacts) and the frame's lateral equation alone (``dynamics.frame_lateral_accel``), which is
 what the observation's frame acceleration costs since it stopped evaluating the former.
 
-``--row-parts`` reports the CPU time per row at N = 4096 of v0's, v1's, v2's and v3's compiled step on
+``--row-parts`` reports the CPU time per row at N = 4096 of each version's (v0-v4) compiled step on
 the calling thread (run it with ``BOGIE_NUM_THREADS=1``), beside its pieces: the commands, the
 simulator's interval, the task's reward, termination and observation, and the sensor model.
 
-``--resets`` steps v3 and v0 at N = 4096 for ``--seconds`` as the default run does and reports
+``--resets`` steps v4 and v0 at N = 4096 for ``--seconds`` as the default run does and reports
 the share of the wall clock spent in ``reset_rows`` (episodes that end start again in place, one
 row at a time in Python), its time per row, and the rate without it.
 
@@ -62,15 +62,16 @@ def rate(variant: str | None, n: int, seconds: float) -> tuple[float, int]:
     return steps_per_second(task, seconds), task.n_sub
 
 
-CASES = (("v0", 1, 2000), ("v1", 1, 1000), ("v2", 1, 1000), ("v3", 1, 1000), ("v0", 4096, 20), ("v1", 4096, 6), ("v2", 4096, 10),
-         ("v3", 4096, 12))  # variant, N, steps per chunk
+VERSIONS = ("v1", "v2", "v3", "v4")  # compared with v0
+CASES = (("v0", 1, 2000), ("v1", 1, 1000), ("v2", 1, 1000), ("v3", 1, 1000), ("v4", 1, 1000), ("v0", 4096, 20), ("v1", 4096, 6),
+         ("v2", 4096, 10), ("v3", 4096, 12), ("v4", 4096, 14))  # variant, N, steps per chunk
 
 
 def reset_share(seconds: float, n: int = 4096) -> None:
-    """--resets: the wall-clock share of resets while stepping v3 and v0 (module docstring)."""
+    """--resets: the wall-clock share of resets while stepping v4 and v0 (module docstring)."""
     import numpy as np
 
-    for variant in ("v3", None):
+    for variant in ("v4", None):
         task = make_task(variant, n)
         actions = np.zeros((n, task.action_dim))
         steps = resets = 0
@@ -162,7 +163,7 @@ def step_parts(chunks: int, n: int = 4096, reps: int = 20) -> dict:
 
 
 def row_parts(chunks: int, n: int = 4096) -> dict:
-    """CPU microseconds per row (best of ``chunks``) of the compiled step of v0, v1, v2 and v3 on the
+    """CPU microseconds per row (best of ``chunks``) of the compiled step of v0 and :data:`VERSIONS` on the
     calling thread, and of its pieces: commands, the simulator's interval (integrator, lag,
     delay, track), the task (reward, termination, observation) and the sensor model."""
     import numpy as np
@@ -173,7 +174,7 @@ def row_parts(chunks: int, n: int = 4096) -> dict:
     from bogie_env.simulator import advance_rows
 
     out = {"load": os.getloadavg()[0]}
-    for variant in (None, "v1", "v2", "v3"):
+    for variant in (None, *VERSIONS):
         task = make_task(variant, n)
         sim_rows, channels, track, dt, n_sub, stages, action, task_rows, cfg, scales, health, sensing = args = task._step_args()
         start, stop = np.int64(0), np.int64(n)
@@ -218,8 +219,7 @@ def cpu_main(args: argparse.Namespace) -> None:
     for tree in args.trees:
         med = {k: statistics.median(f[k] for f in runs[tree]) for k in runs[tree][0]}
         line = ", ".join(f"{k} {v / 1e3:.0f}" for k, v in med.items())
-        ratios = ", ".join(f"v0/v1 N{n} {med[f'v0_N{n}'] / med[f'v1_N{n}']:.2f}, v2/v0 N{n} {med[f'v2_N{n}'] / med[f'v0_N{n}']:.2f}, v3/v0 N{n} {med[f'v3_N{n}'] / med[f'v0_N{n}']:.2f}"
-                           for n in (1, 4096))  # fmt: skip
+        ratios = ", ".join(f"{v}/v0 N{n} {med[f'{v}_N{n}'] / med[f'v0_N{n}']:.2f}" for n in (1, 4096) for v in VERSIONS)
         vs = ""
         if tree != base:
             bmed = {k: statistics.median(f[k] for f in runs[base]) for k in runs[base][0]}
@@ -231,14 +231,14 @@ CHUNKS = 8  # --single: interleaved chunks per case and round
 
 
 def single_main(rounds: int, steps: int = 40000) -> None:
-    """The single env of v0, v1, v2 and v3 against Pendulum-v1 (module docstring)."""
+    """The single env of v0-v4 against Pendulum-v1 (module docstring)."""
     import gymnasium as gym
 
     import bogie_env  # noqa: F401
     from bench_env import rate_single
 
     warnings.filterwarnings("ignore", category=DeprecationWarning)  # gym.make's note that -v0 and -v1 have a newer version
-    ids = ("Pendulum-v1", "Bogie/Hunting-v0", "Bogie/Hunting-v1", "Bogie/Hunting-v2", "Bogie/Hunting-v3")
+    ids = ("Pendulum-v1", "Bogie/Hunting-v0", "Bogie/Hunting-v1", "Bogie/Hunting-v2", "Bogie/Hunting-v3", "Bogie/Hunting-v4")
     print(f"load average {os.getloadavg()[0]:.2f}")
     print(f"{'round':>5} {'id':>18} {'raw steps/s':>12} {'/ Pendulum':>10} {'made steps/s':>13} {'/ Pendulum':>10}")
     for k in range(rounds):
@@ -336,15 +336,13 @@ def main() -> None:
         cpu_main(args)
         return
     print(f"load average {os.getloadavg()[0]:.2f}")
-    print(f"{'N':>6} {'v0 steps/s':>12} {'v1 steps/s':>12} {'v2 steps/s':>12} {'v3 steps/s':>12} {'v0/v1':>6} {'v2/v0':>6} "
-          f"{'v3/v0':>6}  substeps v0, v1, v2, v3")  # fmt: skip
+    print(f"{'N':>6} {'v0 steps/s':>12} " + " ".join(f"{v + ' steps/s':>12}" for v in VERSIONS) + " "
+          + " ".join(f"{v + '/v0':>6}" for v in VERSIONS) + "  substeps v0, " + ", ".join(VERSIONS))  # fmt: skip
     for n in args.sizes:
-        v0, sub0 = rate(None, n, args.seconds)
-        v1, sub1 = rate("v1", n, args.seconds)
-        v2, sub2 = rate("v2", n, args.seconds)
-        v3, sub3 = rate("v3", n, args.seconds)
-        print(f"{n:>6} {v0:>12.0f} {v1:>12.0f} {v2:>12.0f} {v3:>12.0f} {v0 / v1:>6.2f} {v2 / v0:>6.2f} {v3 / v0:>6.2f}  "
-              f"{sub0}, {sub1}, {sub2}, {sub3}", flush=True)  # fmt: skip
+        (v0, sub0), *others = [rate(v, n, args.seconds) for v in (None, *VERSIONS)]
+        print(f"{n:>6} {v0:>12.0f} " + " ".join(f"{r:>12.0f}" for r, _ in others) + " "
+              + " ".join(f"{r / v0:>6.2f}" for r, _ in others) + f"  {sub0}, " + ", ".join(str(k) for _, k in others),
+              flush=True)  # fmt: skip
     print(f"load average {os.getloadavg()[0]:.2f}")
 
 

@@ -81,16 +81,27 @@ POLY14_DIVISORS: tuple[float, ...] = (
     4.00277186388854, 2.999922128425904, 2.0, 1.0,
 )  # fmt: skip
 
+#: The 12-stage method of ``Bogie/Hunting-v4``: its stage divisors d_0 .. d_11, as
+#: :data:`POLY14_DIVISORS`. Its coefficients c_3 .. c_12 are the linear program's on inscribed
+#: polygons (exactly stable, no cuts) for the same spectrum and rule at one 10-ms substep
+#: (``python studies/stability_polynomial.py --growth 1.0 --n-sub 1 --inner 64 --show``), as it
+#: printed them; 11 stages cannot meet the accuracy criterion (docs/studies/integrator.md).
+POLY12_DIVISORS: tuple[float, ...] = (
+    26.120004276457852, 17.20539907244046, 13.064193358267092, 10.385650390475956, 8.737496552083883,
+    7.290793190783834, 6.1447385669169625, 5.039416466473353, 4.020227500558831, 2.999424407972828, 2.0, 1.0,
+)  # fmt: skip
+
 #: Integration methods (``integration.method``) and their stage divisors: classic RK4 (v0, v1;
 #: no divisors), or an S-stage explicit method in Jameson's form, ``y_0 = x``,
 #: ``y_{k+1} = x + h / d_k f(y_k)``, ``x <- y_S`` (:func:`_advance_lanes_taylor`): "taylor10", whose
 #: divisors 10, 9, ..., 1 make its stability polynomial exp's degree-10 Taylor polynomial (v2), and
-#: "poly14", 14 stages with a polynomial designed for the bogie's spectrum (v3). The kernels take
-#: the divisors (an empty array for RK4).
+#: "poly14", 14 stages with a polynomial designed for the bogie's spectrum (v3), and "poly12", 12
+#: (v4). The kernels take the divisors (an empty array for RK4).
 METHOD_DIVISORS: dict[str, tuple[float, ...]] = {
     "rk4": (),
     "taylor10": tuple(float(10 - k) for k in range(10)),
     "poly14": POLY14_DIVISORS,
+    "poly12": POLY12_DIVISORS,
 }
 #: Stages per substep of each method (0: classic RK4, which the kernels treat apart).
 METHOD_STAGES: dict[str, int] = {name: len(d) for name, d in METHOD_DIVISORS.items()}

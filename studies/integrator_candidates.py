@@ -16,7 +16,7 @@ solve with ``W = I - gamma h A``. Candidates (one 10-ms env step = ``n_sub`` sub
 - ``tayS`` (S = 8, 10, 12, 16): an explicit S-stage method whose stability polynomial is the
   degree-S Taylor polynomial of exp (Jameson's form, ``y_k = x + h / (S + 1 - k) f(y_{k-1})``):
   order S on linear problems, order 2 on nonlinear ones, no frozen matrix;
-- ``poly14``: v3's 14-stage method in the same form with the stage divisors of
+- ``poly14``, ``poly12``: v3's 14-stage and v4's 12-stage methods in the same form with the stage divisors of
   ``bogie_env.integrate.METHOD_DIVISORS`` (a stability polynomial designed for this spectrum,
   ``studies/stability_polynomial.py``): order 2.
 
@@ -39,7 +39,7 @@ Parts:
 4. ``env``: the v1 ramp's hunting onset in the env (``studies/step_convergence.py``'s measured
    table: passive, and the gain-scheduled LQR with one and two steps of delay) with RK4 at 10
    and 20 substeps and with the 10-stage Taylor method (``integration.method: taylor10``, v2)
-   at 2 and 4, against RK4 at 40; ``--env-method poly14``: v3's method at 1 and 2 instead.
+   at 2 and 4, against RK4 at 40; ``--env-method poly14`` (poly12): v3's (v4's) method at 1 and 2 instead.
 5. ``cost``: right-hand sides, matrix-vector products (20 x 20) and their flops per env step, and
    the measured time of a compiled single-row step of each (``--part cost``).
 
@@ -69,7 +69,7 @@ from bogie_env.track import TrackInput, alignment_profile, alignment_profile_at_
 
 KMH = 3.6
 DT = 0.01
-METHODS = ("rk4", "etd2rk", "etdrk4", "strang", "ros2", "ros3p", "tay8", "tay9", "tay10", "tay11", "tay12", "tay16", "poly14")
+METHODS = ("rk4", "etd2rk", "etdrk4", "strang", "ros2", "ros3p", "tay8", "tay9", "tay10", "tay11", "tay12", "tay16", "poly14", "poly12")
 GAMMA_ROS2 = 1.0 + 1.0 / np.sqrt(2.0)
 # ROS3P (Lang & Verwer 2001), Hairer-Wanner form: (I/(gamma h) - A) k_i = f(x + sum a_ij k_j) + sum c_ij k_j / h
 ROS3P = dict(gamma=0.7886751345948129, a21=1.267949192431123, a31=1.267949192431123, a32=0.0,
@@ -78,7 +78,7 @@ ROS3P = dict(gamma=0.7886751345948129, a21=1.267949192431123, a31=1.267949192431
 #: per substep: (right-hand sides, 20 x 20 matrix-vector products); LU solves are products with a
 #: precomputed inverse W^-1 (frozen W per speed, tabulated like the phi-functions)
 COUNTS = {"rk4": (4, 0), "etd2rk": (2, 3), "etdrk4": (4, 13), "strang": (2, 4), "ros2": (2, 2), "ros3p": (3, 3),
-          "tay8": (8, 0), "tay9": (9, 0), "tay10": (10, 0), "tay11": (11, 0), "tay12": (12, 0), "tay16": (16, 0), "poly14": (14, 0)}
+          "tay8": (8, 0), "tay9": (9, 0), "tay10": (10, 0), "tay11": (11, 0), "tay12": (12, 0), "tay16": (16, 0), "poly14": (14, 0), "poly12": (12, 0)}
 
 
 # ---------------------------------------------------------------------------------
@@ -520,7 +520,7 @@ def env_onsets(controller: str, conicity: float, method: str, n_sub: int, delay_
 
 def env_part(quick: bool, method: str = "taylor10") -> None:
     """Onsets with RK4 at 10 (v1) and 20 substeps, the env ``method`` at the substeps its env
-    version picks (taylor10: 2, v2; poly14: 1, v3) and at twice that, RK4 at 40 (reference)."""
+    version picks (taylor10: 2, v2; poly14: 1, v3; poly12: 1, v4) and at twice that, RK4 at 40 (reference)."""
     from bogie_env.envs.config import make_config
     from bogie_env.envs.task import HuntingTask
 
@@ -610,7 +610,7 @@ def main() -> None:
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--own-jacobian", action="store_true", help="spectral: A from each bogie's own Jacobian (per-row tables)")
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--env-method", default="taylor10", help="env: the env's integration.method to check (poly14: v3)")
+    parser.add_argument("--env-method", default="taylor10", help="env: the env's integration.method to check (poly14: v3, poly12: v4)")
     args = parser.parse_args()
     n_subs = [int(s) for s in args.n_sub.split(",")]
     methods = args.methods.split(",")

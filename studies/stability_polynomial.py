@@ -29,6 +29,15 @@ cuts do not settle within the rounds is reported "unsettled", which proves nothi
     python studies/stability_polynomial.py --n-sub 1,2 --show     # and the coefficients
     python studies/stability_polynomial.py --growth 1.0 --n-sub 1 --show   # v3's method (poly14)
 
+``--inner K`` replaces the cuts by an inner approximation: at each eigenvalue, K half-planes whose
+polygon is inscribed in the circle ``|R| = bound``, turned so that a vertex points at ``exp(z)``
+(where an accurate ``R`` must lie). A polygon inside the circle makes every solution exactly
+stable, with no cuts; it gives up a sliver of the circle, so an infeasible answer proves nothing,
+and the coefficient scaling by the spectral radius keeps the program well conditioned. With
+``--growth 1.0 --n-sub 1 --inner 64`` it finds degree 12 (v4's method, poly12)::
+
+    python studies/stability_polynomial.py --growth 1.0 --n-sub 1 --inner 64 --show   # v4's method (poly12)
+
 ``--show`` prints the coefficients ``c_k`` and the stage divisors ``d_k = c_{S-k-1} / c_{S-k}``
 of Jameson's form (``integrate.METHOD_DIVISORS``).
 """
@@ -73,11 +82,14 @@ def mode_errors(c: np.ndarray, h: float, light: np.ndarray) -> tuple[float, floa
 
 
 def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.1, rounds: int = 60,
-           growth: float = GROWTH):
+           growth: float = GROWTH, inner: int = 0):
     """(c_0 .. c_S, t, (decay error, frequency error)) of the most accurate stable polynomial of
     degree ``stages``; ``"infeasible"`` when the relaxation has no solution (a certificate); or
     ``"unsettled"`` when the cuts did not reach an exactly stable polynomial in ``rounds`` (no
-    conclusion either way)."""
+    conclusion either way). ``inner`` = K > 0: one program on inscribed K-gons instead of the cuts
+    (module docstring); ``"infeasible"`` is then no certificate."""
+    if inner:
+        return _design_inner(eigenvalues, h, stages, tolerance, growth, inner)
     light = eigenvalues[(eigenvalues.imag > 0) & (-eigenvalues.real < 0.5 * np.abs(eigenvalues))]
     zs = MARGIN * h * eigenvalues
     zs = np.unique(np.round(zs[zs.imag >= 0], 12))
@@ -121,6 +133,45 @@ def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.
     return "unsettled"
 
 
+def _design_inner(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float, growth: float, k_sides: int):
+    """:func:`design` on oriented inscribed polygons (``--inner``), in scaled coefficients
+    ``c_k rho^k`` (rho the largest ``|z|``) so that every column is of order one."""
+    light = eigenvalues[(eigenvalues.imag > 0) & (-eigenvalues.real < 0.5 * np.abs(eigenvalues))]
+    zs = MARGIN * h * eigenvalues
+    zs = np.unique(np.round(zs[zs.imag >= 0], 12))
+    bound = np.maximum(1.0, np.exp(growth * zs.real))
+    powers = np.arange(3, stages + 1)
+    scale = np.max(np.abs(zs)) ** powers.astype(float)
+    fixed = lambda z: 1 + z + z**2 / 2  # noqa: E731
+    rows, rhs = [], []
+    zl = h * light
+    back = np.exp(-zl)
+    for part, size in ((np.real, np.maximum(np.abs(light.real), 0.01 * np.abs(light))), (np.imag, np.abs(light.imag))):
+        cols = part(zl[:, None] ** powers / scale * back[:, None])
+        const = part(fixed(zl) * back - 1)
+        for sign in (1, -1):
+            rows.append(np.hstack([sign * cols, -tolerance * h * size[:, None]]))
+            rhs.append(-sign * const)
+    vertex = np.angle(np.exp(zs))  # a vertex of each polygon points where R should be
+    columns = zs[:, None] ** powers / scale
+    for side in range(k_sides):
+        rot = np.exp(-1j * (vertex + np.pi * (2 * side + 1) / k_sides))
+        rows.append(np.hstack([np.real(columns * rot[:, None]), np.zeros((zs.size, 1))]))
+        rhs.append(bound * np.cos(np.pi / k_sides) - np.real(fixed(zs) * rot))
+    cost = np.zeros(powers.size + 1)
+    cost[-1] = 1.0
+    res = linprog(cost, A_ub=np.vstack(rows), b_ub=np.concatenate(rhs), bounds=[(None, None)] * powers.size + [(0, None)],
+                  method="highs")  # fmt: skip
+    if res.status == 2:
+        return "infeasible"
+    if not res.success:
+        return "unsettled"
+    c = np.concatenate([[1.0, 1.0, 0.5], res.x[:-1] / scale])
+    if np.any(np.abs(polynomial(c, zs)) > bound + EXACT_TOLERANCE):
+        return "unsettled"  # the solver's own tolerance, not the polygon
+    return c, float(res.x[-1]), mode_errors(c, h, light)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--variant", default="v2")
@@ -129,6 +180,8 @@ def main() -> None:
     parser.add_argument("--show", action="store_true", help="print the coefficients and stage divisors found")
     parser.add_argument("--growth", type=float, default=GROWTH,
                         help="a growing mode may grow this many times faster (1.0: the env's own rule)")
+    parser.add_argument("--inner", type=int, default=0, metavar="K",
+                        help="inscribed K-gons instead of cuts (see the docstring); 0: cuts")
     args = parser.parse_args()
     eigenvalues, dt = criterion_eigenvalues(args.variant)
     print(f"{eigenvalues.size} eigenvalues, spectral radius {np.max(np.abs(eigenvalues)):.0f} 1/s, dt {dt * 1e3:g} ms")
@@ -137,7 +190,7 @@ def main() -> None:
         h = dt / n_sub
         verdicts = []
         for stages in range(3, args.max_stages + 1):
-            found = design(eigenvalues, h, stages, growth=args.growth)
+            found = design(eigenvalues, h, stages, growth=args.growth, inner=args.inner)
             if isinstance(found, str):
                 verdicts.append(f"{stages}: {found}")
                 continue

@@ -32,8 +32,9 @@ STEP_CRITERIA = ("stability", "accuracy")
 #: a 10-stage explicit method whose stability polynomial is exp's degree-10 Taylor polynomial
 #: (v2); or "poly14", a 14-stage explicit method of second order whose stability polynomial was
 #: designed for the bogie's spectrum (v3; ``bogie_env.integrate.METHOD_DIVISORS``,
-#: docs/studies/integrator.md). The step criterion applies to the method chosen.
-INTEGRATION_METHODS = ("rk4", "taylor10", "poly14")
+#: docs/studies/integrator.md); or "poly12", 12 stages by the same design (v4). The step
+#: criterion applies to the method chosen.
+INTEGRATION_METHODS = ("rk4", "taylor10", "poly14", "poly12")
 _ACTUATOR_DEFAULTS = {c.name: dict(c.defaults) for c in ACTUATOR_CHANNELS}
 
 
@@ -378,6 +379,18 @@ def _v3(actuators: dict[str, Any]) -> dict[str, Any]:
 VARIANTS.update({
     "v3": _v3(copy.deepcopy(_ACTUATOR_DEFAULTS)),
     "v3_passive": _v3(passive_actuators()),
+})
+
+
+#: v4 (Bogie/Hunting-v4): v3 with the 12-stage designed method (poly12): one substep per 10-ms
+#: step by the same accuracy criterion, 12 right-hand sides.
+def _v4(actuators: dict[str, Any]) -> dict[str, Any]:
+    return {**_v3(actuators), "integration": {"step_criterion": "accuracy", "method": "poly12"}}
+
+
+VARIANTS.update({
+    "v4": _v4(copy.deepcopy(_ACTUATOR_DEFAULTS)),
+    "v4_passive": _v4(passive_actuators()),
 })
 
 

@@ -53,6 +53,10 @@ IDS: dict[str, str | None] = {
     # criterion: one substep, 14 right-hand sides per env step (docs/studies/integrator.md)
     "Bogie/Hunting-v3": "v3",
     "Bogie/HuntingPassive-v3": "v3_passive",
+    # v3 with a 12-stage method from the same design program on inscribed polygons: one substep,
+    # 12 right-hand sides per env step (docs/studies/integrator.md)
+    "Bogie/Hunting-v4": "v4",
+    "Bogie/HuntingPassive-v4": "v4_passive",
 }
 
 
