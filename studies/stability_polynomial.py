@@ -81,6 +81,43 @@ def mode_errors(c: np.ndarray, h: float, light: np.ndarray) -> tuple[float, floa
     return float(np.max(decay)), float(np.max(np.abs(lam_h.imag - light.imag) / np.abs(light.imag)))
 
 
+def _fixed(z: np.ndarray) -> np.ndarray:
+    """The part of R that second order fixes: 1 + z + z^2/2."""
+    return 1 + z + z**2 / 2
+
+
+def _program(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float, growth: float, scale: np.ndarray):
+    """What both searches share: the light modes, the scaled stability points ``zs`` with their
+    bounds, the powers 3..S, and the accuracy rows (A, b) of the linear program in the unknowns
+    ``c_k * scale_k`` (k = 3..S) and ``t``."""
+    light = eigenvalues[(eigenvalues.imag > 0) & (-eigenvalues.real < 0.5 * np.abs(eigenvalues))]
+    zs = MARGIN * h * eigenvalues
+    zs = np.unique(np.round(zs[zs.imag >= 0], 12))
+    bound = np.maximum(1.0, np.exp(growth * zs.real))
+    powers = np.arange(3, stages + 1)
+    rows, rhs = [], []
+    zl = h * light
+    back = np.exp(-zl)
+    for part, size in ((np.real, np.maximum(np.abs(light.real), 0.01 * np.abs(light))), (np.imag, np.abs(light.imag))):
+        cols = part(zl[:, None] ** powers / scale * back[:, None])
+        const = part(_fixed(zl) * back - 1)
+        for sign in (1, -1):
+            rows.append(np.hstack([sign * cols, -tolerance * h * size[:, None]]))
+            rhs.append(-sign * const)
+    return light, zs, bound, powers, rows, rhs
+
+
+def _solve(rows: list, rhs: list, n_free: int) -> np.ndarray | str:
+    """The program's solution (the free coefficients, then ``t``), or its verdict."""
+    cost = np.zeros(n_free + 1)
+    cost[-1] = 1.0
+    res = linprog(cost, A_ub=np.vstack(rows), b_ub=np.concatenate(rhs), bounds=[(None, None)] * n_free + [(0, None)],
+                  method="highs")  # fmt: skip
+    if res.status == 2:
+        return "infeasible"
+    return res.x if res.success else "unsettled"
+
+
 def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.1, rounds: int = 60,
            growth: float = GROWTH, inner: int = 0):
     """(c_0 .. c_S, t, (decay error, frequency error)) of the most accurate stable polynomial of
@@ -90,45 +127,27 @@ def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.
     (module docstring); ``"infeasible"`` is then no certificate."""
     if inner:
         return _design_inner(eigenvalues, h, stages, tolerance, growth, inner)
-    light = eigenvalues[(eigenvalues.imag > 0) & (-eigenvalues.real < 0.5 * np.abs(eigenvalues))]
-    zs = MARGIN * h * eigenvalues
-    zs = np.unique(np.round(zs[zs.imag >= 0], 12))
-    bound = np.maximum(1.0, np.exp(growth * zs.real)) + 1e-13
-    powers = np.arange(3, stages + 1)
-    fixed = lambda z: 1 + z + z**2 / 2  # noqa: E731
-    rows, rhs = [], []
-    zl = h * light
-    back = np.exp(-zl)
-    for part, scale in ((np.real, np.maximum(np.abs(light.real), 0.01 * np.abs(light))), (np.imag, np.abs(light.imag))):
-        cols = part(zl[:, None] ** powers * back[:, None])
-        const = part(fixed(zl) * back - 1)
-        for sign in (1, -1):
-            rows.append(np.hstack([sign * cols, -tolerance * h * scale[:, None]]))
-            rhs.append(-sign * const)
+    light, zs, bound, powers, rows, rhs = _program(eigenvalues, h, stages, tolerance, growth, np.ones(stages - 2))
+    bound = bound + 1e-13
 
     def planes(idx: np.ndarray, theta: np.ndarray) -> None:
         rot = np.exp(-1j * theta)
         z = zs[idx]
         rows.append(np.hstack([np.real(z[:, None] ** powers * rot[:, None]), np.zeros((idx.size, 1))]))
-        rhs.append(bound[idx] - np.real(fixed(z) * rot))
+        rhs.append(bound[idx] - np.real(_fixed(z) * rot))
 
     every = np.arange(zs.size)
     for shift in (0.0, 0.1, -0.1, 0.3, -0.3, 1.0, -1.0, 2.0, -2.0, np.pi):
         planes(every, zs.imag + shift)
-    cost = np.zeros(powers.size + 1)
-    cost[-1] = 1.0
     for _ in range(rounds):
-        res = linprog(cost, A_ub=np.vstack(rows), b_ub=np.concatenate(rhs), bounds=[(None, None)] * powers.size + [(0, None)],
-                      method="highs")  # fmt: skip
-        if res.status == 2:
-            return "infeasible"
-        if not res.success:
-            return "unsettled"
-        c = np.concatenate([[1.0, 1.0, 0.5], res.x[:-1]])
+        x = _solve(rows, rhs, powers.size)
+        if isinstance(x, str):
+            return x
+        c = np.concatenate([[1.0, 1.0, 0.5], x[:-1]])
         r = polynomial(c, zs)
         bad = np.nonzero(np.abs(r) > bound + EXACT_TOLERANCE)[0]
         if bad.size == 0:
-            return c, float(res.x[-1]), mode_errors(c, h, light)
+            return c, float(x[-1]), mode_errors(c, h, light)
         planes(bad, np.angle(r[bad]))
     return "unsettled"
 
@@ -136,40 +155,22 @@ def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.
 def _design_inner(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float, growth: float, k_sides: int):
     """:func:`design` on oriented inscribed polygons (``--inner``), in scaled coefficients
     ``c_k rho^k`` (rho the largest ``|z|``) so that every column is of order one."""
-    light = eigenvalues[(eigenvalues.imag > 0) & (-eigenvalues.real < 0.5 * np.abs(eigenvalues))]
-    zs = MARGIN * h * eigenvalues
-    zs = np.unique(np.round(zs[zs.imag >= 0], 12))
-    bound = np.maximum(1.0, np.exp(growth * zs.real))
-    powers = np.arange(3, stages + 1)
-    scale = np.max(np.abs(zs)) ** powers.astype(float)
-    fixed = lambda z: 1 + z + z**2 / 2  # noqa: E731
-    rows, rhs = [], []
-    zl = h * light
-    back = np.exp(-zl)
-    for part, size in ((np.real, np.maximum(np.abs(light.real), 0.01 * np.abs(light))), (np.imag, np.abs(light.imag))):
-        cols = part(zl[:, None] ** powers / scale * back[:, None])
-        const = part(fixed(zl) * back - 1)
-        for sign in (1, -1):
-            rows.append(np.hstack([sign * cols, -tolerance * h * size[:, None]]))
-            rhs.append(-sign * const)
+    rho = np.max(np.abs(MARGIN * h * eigenvalues))
+    scale = rho ** np.arange(3, stages + 1, dtype=float)
+    light, zs, bound, powers, rows, rhs = _program(eigenvalues, h, stages, tolerance, growth, scale)
     vertex = np.angle(np.exp(zs))  # a vertex of each polygon points where R should be
     columns = zs[:, None] ** powers / scale
     for side in range(k_sides):
         rot = np.exp(-1j * (vertex + np.pi * (2 * side + 1) / k_sides))
         rows.append(np.hstack([np.real(columns * rot[:, None]), np.zeros((zs.size, 1))]))
-        rhs.append(bound * np.cos(np.pi / k_sides) - np.real(fixed(zs) * rot))
-    cost = np.zeros(powers.size + 1)
-    cost[-1] = 1.0
-    res = linprog(cost, A_ub=np.vstack(rows), b_ub=np.concatenate(rhs), bounds=[(None, None)] * powers.size + [(0, None)],
-                  method="highs")  # fmt: skip
-    if res.status == 2:
-        return "infeasible"
-    if not res.success:
-        return "unsettled"
-    c = np.concatenate([[1.0, 1.0, 0.5], res.x[:-1] / scale])
+        rhs.append(bound * np.cos(np.pi / k_sides) - np.real(_fixed(zs) * rot))
+    x = _solve(rows, rhs, powers.size)
+    if isinstance(x, str):
+        return x
+    c = np.concatenate([[1.0, 1.0, 0.5], x[:-1] / scale])
     if np.any(np.abs(polynomial(c, zs)) > bound + EXACT_TOLERANCE):
         return "unsettled"  # the solver's own tolerance, not the polygon
-    return c, float(res.x[-1]), mode_errors(c, h, light)
+    return c, float(x[-1]), mode_errors(c, h, light)
 
 
 def main() -> None:

@@ -27,18 +27,23 @@ DT = 0.01
 METHOD = "poly14"
 
 
-def test_polynomial_is_second_order_and_the_divisors_product():
+def assert_second_order_divisors_product(method: str, stages: int) -> np.ndarray:
     """R(z) = 1 + z + z^2/2 + O(z^3), and its coefficients are the running products of 1/d_k
-    (Jameson's form), recomputed here from the divisors in the opposite order."""
-    d = METHOD_DIVISORS[METHOD]
-    assert METHOD_STAGES[METHOD] == len(d) == 14
-    coefficients = np.cumprod([1.0] + [1.0 / x for x in d[::-1]])  # c_0 .. c_14
+    (Jameson's form), recomputed here from the divisors in the opposite order. Returns c_0 .. c_S."""
+    d = METHOD_DIVISORS[method]
+    assert METHOD_STAGES[method] == len(d) == stages
+    coefficients = np.cumprod([1.0] + [1.0 / x for x in d[::-1]])
     z = np.array([1e-3 + 2e-3j, -0.5 + 3.0j, -4.0 + 6.0j])
     expected = sum(c * z**k for k, c in enumerate(coefficients))
-    assert np.allclose(taylor_polynomial(z, METHOD), expected, rtol=1e-13)
+    assert np.allclose(taylor_polynomial(z, method), expected, rtol=1e-13)
     small = 1e-2 * np.exp(1j * np.linspace(0, np.pi, 5))
-    err = taylor_polynomial(small, METHOD) - np.exp(small)
+    err = taylor_polynomial(small, method) - np.exp(small)
     assert np.all(np.abs(err) <= 0.2 * np.abs(small) ** 3)  # third-order local error: second order
+    return coefficients
+
+
+def test_polynomial_is_second_order_and_the_divisors_product():
+    coefficients = assert_second_order_divisors_product(METHOD, 14)
     assert coefficients[3] != pytest.approx(1 / 6, rel=1e-6) or coefficients[6] != pytest.approx(1 / 720, rel=1e-6)  # not Taylor
 
 
