@@ -30,19 +30,40 @@ def rng():
     return np.random.default_rng(12345)
 
 
+#: What a second process compiles meanwhile: kernels that do not call the integrator (the
+#: linearisation and equilibrium, a v1 task's reset with its sensors), so the two never compile
+#: the same function.
+_OTHER_KERNELS = """
+import numpy as np
+from bogie_env.dynamics import BogieModel
+from bogie_env.envs.config import make_config
+from bogie_env.envs.task import HuntingTask
+from bogie_env.stability import linearize
+linearize(BogieModel())
+task = HuntingTask(2, make_config(variant="v1"))
+task.seed_rows(np.arange(2), [0, 1])
+task.reset_rows(np.arange(2))
+"""
+
+
 def pytest_configure(config):
     """On a cold numba cache (a clean clone) the xdist controller compiles the lane-block
-    integrator once, before the workers start; otherwise every worker compiles it at once (about
-    60 s of CPU each). With a warm cache this takes well under a second."""
+    integrator once, before the workers start, and a second process the kernels that do not
+    call it; otherwise every worker compiles them at once (about 70 s of CPU each). With a warm
+    cache this takes a second or two."""
     if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
+        import subprocess
+        import sys
         import time
 
         from bogie_env.simulator import BatchSimulator
 
         started = time.perf_counter()
+        other = subprocess.Popen([sys.executable, "-c", _OTHER_KERNELS], cwd=config.rootpath)
         BatchSimulator(BogieModel(BogieParams.paper()), 9).run(1)  # 9 rows: the lane blocks of 8 and of 1
+        other.wait()
         if time.perf_counter() - started > 5.0:
-            print(f"numba: the integrator compiled once for the workers in {time.perf_counter() - started:.0f} s (cached)")
+            print(f"numba: the shared kernels compiled once for the workers in {time.perf_counter() - started:.0f} s (cached)")
 
 
 def pytest_collection_modifyitems(config, items):
