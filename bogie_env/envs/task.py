@@ -420,6 +420,13 @@ class StepArgs(structref.StructRefProxy):
 structref.define_proxy(StepArgs, _StepArgsType, list(STEP_ARG_NAMES))
 
 
+# numba compiles StepArgs' own constructor anew in every process (about 0.5 s at a task's first
+# step); this one is cached with the other kernels.
+@njit(cache=True)
+def _pack_step_args(sim_rows, channels, track, dt, n_sub, divisors, action, task_rows, cfg, state_scales, health, sensing):
+    return StepArgs(sim_rows, channels, track, dt, n_sub, divisors, action, task_rows, cfg, state_scales, health, sensing)
+
+
 @njit(cache=True, fastmath=FASTMATH)
 def _step_serial_packed(action_in, k):
     """:func:`_step_serial` with its fixed arguments in one :class:`StepArgs`."""
@@ -918,7 +925,7 @@ class HuntingTask:
             bad = self.loops.run(_step_serial, _step_checked_parallel, a, *self._step_args())
         else:  # always the calling thread: one packed argument is cheaper to dispatch
             if self._packed_step_args is None:
-                self._packed_step_args = StepArgs(*self._step_args())
+                self._packed_step_args = _pack_step_args(*self._step_args())
             bad = _step_serial_packed(a, self._packed_step_args)
         if bad >= 0:
             self._raise_non_finite(a, bad)
