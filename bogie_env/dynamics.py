@@ -548,6 +548,8 @@ def _newton_equilibrium(v, q, yt, p, tol):
 
 def check_speed(speed: np.ndarray | float, name: str = "speed") -> np.ndarray:
     """Speeds in m/s as a float64 array; raises if any is NaN, inf or outside the model range."""
+    if type(speed) in (float, np.float64) and MIN_SPEED <= speed <= MAX_SPEED:  # a scalar in range (resets: twice a row)
+        return np.asarray(speed, dtype=np.float64)
     v = np.asarray(speed, dtype=np.float64)
     bad = ~np.isfinite(v) | (v < MIN_SPEED) | (v > MAX_SPEED)
     if np.any(bad):
