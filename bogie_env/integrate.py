@@ -85,7 +85,7 @@ POLY14_DIVISORS: tuple[float, ...] = (
 #: :data:`POLY14_DIVISORS`. Its coefficients c_3 .. c_12 are the linear program's on inscribed
 #: polygons (exactly stable, no cuts) for the same spectrum and rule at one 10-ms substep
 #: (``python studies/stability_polynomial.py --growth 1.0 --n-sub 1 --inner 64 --show``), as it
-#: printed them; 11 stages cannot meet the accuracy criterion (docs/studies/integrator.md).
+#: printed them; 11 stages cannot meet the accuracy criterion, to first order (docs/studies/integrator.md).
 POLY12_DIVISORS: tuple[float, ...] = (
     26.120004276457852, 17.20539907244046, 13.064193358267092, 10.385650390475956, 8.737496552083883,
     7.290793190783834, 6.1447385669169625, 5.039416466473353, 4.020227500558831, 2.999424407972828, 2.0, 1.0,
