@@ -667,7 +667,7 @@ class BogieModel:
         constant term). All lateral, yaw and roll states are zero by mirror symmetry.
         """
         v = float(check_speed(speed))
-        q = _as_rows(np.zeros(N_INPUTS) if inputs is None else inputs, N_INPUTS, 1, "inputs")[0]
+        q = np.zeros(N_INPUTS) if inputs is None else _as_rows(inputs, N_INPUTS, 1, "inputs")[0]
         x, residual = _newton_equilibrium(v, q, np.zeros(N_TRACK), self.coefficients, tol)
         if residual < 0.0:
             return x

@@ -436,7 +436,13 @@ class BatchSimulator:
         self.command[rows] = 0.0
         self.output[rows] = 0.0
         self.status[rows] = STATUS_OK
-        _sample_rows(np.atleast_1d(np.arange(self.n)[rows]), self.motion, self.coefficients, self._track, self.track_sample)
+        _sample_rows(self._row_indices(rows), self.motion, self.coefficients, self._track, self.track_sample)
+
+    def _row_indices(self, rows: np.ndarray | slice | int) -> np.ndarray:
+        """``rows`` as int64 indices; one row (a reset's) without building every row's index."""
+        if isinstance(rows, (int, np.integer)) and -self.n <= rows < self.n:
+            return np.array([rows % self.n], dtype=np.int64)
+        return np.atleast_1d(np.arange(self.n)[rows])
 
     def set_ramp(self, rows: np.ndarray | slice, accel: float, end_speed: float) -> None:
         """Change the speed ramp of running bogies (their states and actuators carry on):
