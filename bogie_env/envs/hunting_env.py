@@ -187,7 +187,7 @@ class BogieHuntingEnv(gym.Env):
       1; 0 switches the noise or the bias off, 2 doubles it), the same as editing each
       `sensors.<channel>.noise_density` / `.bias`. `observation.noise` (see above) stays 0.
       `sensors.noise_draws`: "per_channel" (v1, v2: one Box-Muller draw per channel and sample)
-      or "paired" (v3: both branches of one draw for two channels); the same statistics, other
+      or "paired" (v3, v4: both branches of one draw for two channels); the same statistics, other
       sequences.
     - Actuators: `delay_steps` = 1 (10 ms loop delay) and `rate_limit` 200 kN/s (lateral),
       400 kN m/s (yaw channels), on top of the 10 Hz lag and the saturation of v0.
@@ -241,6 +241,13 @@ class BogieHuntingEnv(gym.Env):
       gain the fault value `"none"`; config gains `sensors.noise_scale`, `sensors.bias_scale`,
       `speed.supported_kmh`, `info.criterion` and `autoreset.reuse_options`. Trajectories are
       unchanged (`tests/test_v0_golden.py`, `tests/test_v1_golden.py`).
+    - v2: v1's task with a 10-stage Taylor integrator at 2 substeps (20 right-hand sides per
+      step instead of 40), chosen by the same accuracy criterion.
+    - v3: v1's task with a 14-stage method designed for the bogie's spectrum, one substep (14),
+      and the sensor noise drawn in pairs.
+    - v4: v3 with a 12-stage method from the same design program, one substep (12). v2-v4 keep
+      their bits (`tests/test_v2_v3_golden.py`, `tests/test_v4_golden.py`; evidence and speed:
+      docs/studies/integrator.md, docs/performance.md).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 100}  # 1 / dt; set per instance
