@@ -152,18 +152,36 @@ def design(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.
     return "unsettled"
 
 
+def _polygon_rows(zs, bound, powers, scale, k_sides, offset, inscribed, rows, rhs) -> None:
+    """K half-planes per point, normals at ``arg exp(z) + offset + 2 pi k / K``: inscribed in the
+    circle ``|R| = bound`` (their polygon lies inside it) or circumscribed (implied by it)."""
+    columns = zs[:, None] ** powers / scale
+    reach = bound * np.cos(np.pi / k_sides) if inscribed else bound
+    for side in range(k_sides):
+        rot = np.exp(-1j * (np.angle(np.exp(zs)) + offset + 2 * np.pi * side / k_sides))
+        rows.append(np.hstack([np.real(columns * rot[:, None]), np.zeros((zs.size, 1))]))
+        rhs.append(reach - np.real(_fixed(zs) * rot))
+
+
+def least_error_bound(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float = 0.1, growth: float = GROWTH,
+                      k_sides: int = 256) -> float | str:
+    """A lower bound on the least linearised error ``t`` of any stable polynomial of degree
+    ``stages``: the program on circumscribed K-gons, a relaxation of ``|R| <= bound``. Above 1, no
+    polynomial of that degree meets the accuracy criterion (to first order)."""
+    scale = np.max(np.abs(MARGIN * h * eigenvalues)) ** np.arange(3, stages + 1, dtype=float)
+    _, zs, bound, powers, rows, rhs = _program(eigenvalues, h, stages, tolerance, growth, scale)
+    _polygon_rows(zs, bound, powers, scale, k_sides, 0.0, False, rows, rhs)
+    x = _solve(rows, rhs, powers.size)
+    return x if isinstance(x, str) else float(x[-1])
+
+
 def _design_inner(eigenvalues: np.ndarray, h: float, stages: int, tolerance: float, growth: float, k_sides: int):
     """:func:`design` on oriented inscribed polygons (``--inner``), in scaled coefficients
     ``c_k rho^k`` (rho the largest ``|z|``) so that every column is of order one."""
     rho = np.max(np.abs(MARGIN * h * eigenvalues))
     scale = rho ** np.arange(3, stages + 1, dtype=float)
     light, zs, bound, powers, rows, rhs = _program(eigenvalues, h, stages, tolerance, growth, scale)
-    vertex = np.angle(np.exp(zs))  # a vertex of each polygon points where R should be
-    columns = zs[:, None] ** powers / scale
-    for side in range(k_sides):
-        rot = np.exp(-1j * (vertex + np.pi * (2 * side + 1) / k_sides))
-        rows.append(np.hstack([np.real(columns * rot[:, None]), np.zeros((zs.size, 1))]))
-        rhs.append(bound * np.cos(np.pi / k_sides) - np.real(_fixed(zs) * rot))
+    _polygon_rows(zs, bound, powers, scale, k_sides, np.pi / k_sides, True, rows, rhs)  # a vertex points at exp(z)
     x = _solve(rows, rhs, powers.size)
     if isinstance(x, str):
         return x
@@ -197,7 +215,9 @@ def main() -> None:
                 continue
             c, t, (decay, freq) = found
             if max(decay, freq) > 0.1:
-                verdicts.append(f"{stages}: stable, inaccurate (decay {decay:.3f}, frequency {freq:.3f})")
+                bound = f", every polynomial t >= {least_error_bound(eigenvalues, h, stages, growth=args.growth, k_sides=args.inner):.3f}" \
+                    if args.inner else ""  # fmt: skip
+                verdicts.append(f"{stages}: stable, inaccurate (decay {decay:.3f}, frequency {freq:.3f}, t {t:.3f}{bound})")
                 continue
             print(f"{n_sub} substeps: {'; '.join(verdicts) or '-'}; found at S = {stages} ({n_sub * stages} stages per env "
                   f"step, decay error {decay:.4f}, frequency error {freq:.4f})", flush=True)  # fmt: skip
