@@ -37,6 +37,7 @@ def _hertz_ratio(m: float) -> float:
     return (e_m / (1.0 - m) - k_m) / (k_m - e_m)
 
 
+@lru_cache(maxsize=256)
 def _k_minus_e_over_m(m: float) -> float:
     """(K(m) - E(m)) / m, with its series near m = 0 where the difference cancels."""
     if m < 1e-6:

@@ -551,6 +551,10 @@ def check_speed(speed: np.ndarray | float, name: str = "speed") -> np.ndarray:
     if type(speed) in (float, np.float64) and MIN_SPEED <= speed <= MAX_SPEED:  # a scalar in range (resets: twice a row)
         return np.asarray(speed, dtype=np.float64)
     v = np.asarray(speed, dtype=np.float64)
+    if v.size == 1 and MIN_SPEED <= v.item() <= MAX_SPEED:  # one in range (a reset's row)
+        return v
+    if v.size > 1 and MIN_SPEED <= v.min() and v.max() <= MAX_SPEED:  # all in range (NaN fails the comparisons)
+        return v
     bad = ~np.isfinite(v) | (v < MIN_SPEED) | (v > MAX_SPEED)
     if np.any(bad):
         value = float(v.flat[int(np.argmax(bad.ravel()))])
@@ -666,9 +670,19 @@ class BogieModel:
         components lift the wheelset by ``z0 = alpha0 f12 lam^2 / (r0 Kpz)`` (Eq. 48's
         constant term). All lateral, yaw and roll states are zero by mirror symmetry.
         """
-        v = float(check_speed(speed))
-        q = np.zeros(N_INPUTS) if inputs is None else _as_rows(inputs, N_INPUTS, 1, "inputs")[0]
-        x, residual = _newton_equilibrium(v, q, np.zeros(N_TRACK), self.coefficients, tol)
-        if residual < 0.0:
-            return x
-        raise RuntimeError(f"equilibrium: Newton did not converge at {speed} m/s (residual {residual:.3g})")
+        return equilibrium_state(self.coefficients, speed, inputs, tol)
+
+
+def equilibrium_state(coefficients: np.ndarray, speed: float, inputs: np.ndarray | None = None,
+                      tol: float = 1e-13) -> np.ndarray:  # fmt: skip
+    """:meth:`BogieModel.equilibrium` of the bogie with this coefficient vector (a reset's
+    scenario, without building its model)."""
+    v = float(check_speed(speed))
+    q = _NO_INPUTS if inputs is None else _as_rows(inputs, N_INPUTS, 1, "inputs")[0]
+    x, residual = _newton_equilibrium(v, q, _NO_TRACK, coefficients, tol)
+    if residual < 0.0:
+        return x
+    raise RuntimeError(f"equilibrium: Newton did not converge at {speed} m/s (residual {residual:.3g})")
+
+
+_NO_INPUTS, _NO_TRACK = np.zeros(N_INPUTS), np.zeros(N_TRACK)  # writable: numba types read-only arrays apart

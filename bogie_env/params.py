@@ -275,6 +275,11 @@ class BogieParams:
 
     def scaled(self, **factors: float) -> "BogieParams":
         """A copy with parameters multiplied by factors, e.g. ``scaled(Csy=0.5, Kpz=2.5)``."""
+        return self.replace(**self.scaled_values(**factors))
+
+    def scaled_values(self, **factors: float) -> dict[str, float]:
+        """The values :meth:`scaled` sets, name -> this value times its factor (not yet
+        validated against the parameter's range; :meth:`replace` does that)."""
         changes = {}
         for name, factor in factors.items():
             base = getattr(self, name) if name in FIELDS else None
@@ -286,7 +291,7 @@ class BogieParams:
             if not math.isfinite(factor) or factor < 0:
                 raise ConfigError(f"scale factor for {name!r} = {factor!r} must be finite and >= 0")
             changes[name] = base * factor
-        return self.replace(**changes)
+        return changes
 
     def with_overrides(self, assignments: list[str] | tuple[str, ...] | Mapping[str, Any]) -> "BogieParams":
         """Apply overrides: a mapping of names to values, or the CLI's ``NAME=VALUE`` strings."""

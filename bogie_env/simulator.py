@@ -442,6 +442,8 @@ class BatchSimulator:
         """``rows`` as int64 indices; one row (a reset's) without building every row's index."""
         if isinstance(rows, (int, np.integer)) and -self.n <= rows < self.n:
             return np.array([rows % self.n], dtype=np.int64)
+        if isinstance(rows, np.ndarray) and rows.dtype == np.int64 and rows.ndim == 1 and rows.size and 0 <= rows.min() and rows.max() < self.n:
+            return rows
         return np.atleast_1d(np.arange(self.n)[rows])
 
     def set_ramp(self, rows: np.ndarray | slice, accel: float, end_speed: float) -> None:

@@ -20,6 +20,7 @@ from bogie_agents.evaluation.stability_protocol import flange_touching
 from bogie_agents.training.vec_env import BogieHuntingSB3VecEnv
 from bogie_env.actuators import H_GAIN, H_HELD_FORCE
 from bogie_env.analysis.en14363 import running_signals_rows
+from bogie_env.contact import creep_coefficients
 from bogie_env.envs import scenario as scenarios
 from bogie_env.dynamics import P_WPA, BogieModel, state_index
 from bogie_env.envs.config import bogie_params, make_config
@@ -358,3 +359,57 @@ def test_route_info_keeps_its_fields_and_agrees_with_the_criterion_fields():
         assert np.array_equal(info["flange_contact"], q["flange_contact"][0])
         assert info["y_over_q"] == pytest.approx(q["y_over_q"][0], rel=1e-9)
         np.testing.assert_allclose(info["guiding_force_n"], -info["sum_y_n"], rtol=1e-9, atol=1e-6)
+
+
+# ---- a reset's scenario bogie, and resets of many rows at once ----------------------------------
+def _scenario_model_by_hand(base, s):
+    """The documented chain, step by step: factors multiply (per parameter), the conicity
+    replaces lam, the creep factor scales the creep coefficients of the bogie so changed."""
+    factors = dict(s.factors)
+    for name, key in (("primary_longitudinal_stiffness", "Kpx"), ("primary_lateral_stiffness", "Kpy"), ("axle_load", "Wpa")):
+        factors[key] = factors.get(key, 1.0) * getattr(s, name)
+    for key in ("Csx", "Csy"):
+        factors[key] = factors.get(key, 1.0) * s.damper_factor
+    params = base.scaled(**factors)
+    if s.conicity is not None:
+        params = params.replace(lam=s.conicity)
+    creep = creep_coefficients(params)
+    params = params.replace(**{k: getattr(creep, k) * s.creep_factor for k in ("f11", "f12", "f22", "f33")})
+    return BogieModel(params)
+
+
+V1_DRAWS = make_config(variant="v1")["randomize"]
+
+
+@pytest.mark.parametrize("randomize", [V1_DRAWS, {**V1_DRAWS, "Kpz": [0.5, 2.0], "h1": [0.8, 1.2]},
+                                       {"axle_load": [0.8, 1.2], "Wpa": [0.9, 1.1], "lam": [0.5, 4.0]}])  # fmt: skip
+def test_a_resets_bogie_is_its_scenarios_model_bit_for_bit(randomize):
+    cfg = make_config({"randomize": randomize}, variant="v1")
+    base = bogie_params(cfg)
+    nominal = BogieModel(base)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        s = scenarios.draw_scenario(cfg["randomize"], {}, rng, ["frame_lateral"])
+        expected = _scenario_model_by_hand(base, s).coefficients
+        assert np.array_equal(scenarios.scenario_coefficients(base, s, nominal), expected)
+        assert np.array_equal(scenarios.scenario_model(base, s, nominal).coefficients, expected)
+    assert scenarios.scenario_coefficients(base, scenarios.Scenario(), nominal) is nominal.coefficients
+
+
+def test_many_rows_reset_at_once_as_each_alone():
+    config = {**ALWAYS_FAULTY, "randomize": {**V1_DRAWS, **ALWAYS_FAULTY["randomize"]},
+              "speed": {"start_kmh_range": [200.0, 300.0], "end_kmh": 400.0, "accel": 1.0}}  # fmt: skip
+    together, alone = v1_task(config, n=6), v1_task(config, n=6)
+    rows = np.arange(6)
+    together.seed_rows(rows, list(range(10, 16)))
+    together.reset_rows(rows)
+    for i in rows:
+        alone.seed_rows(np.array([i]), [10 + i])
+        alone.reset_rows(np.array([i]))
+    assert {together.scenarios[i].stuck_actuator is None for i in rows} == {True, False}  # both fault kinds
+    for name in ("states", "obs", "health", "sensor_bias", "sensor_scale", "episode", "info", "route_slot"):
+        a, b = getattr(together, name), getattr(alone, name)
+        assert np.array_equal(a, b, equal_nan=True), name
+    for name in ("coefficients", "lag", "delay", "motion"):
+        assert np.array_equal(getattr(together.sim, name), getattr(alone.sim, name), equal_nan=True), name
+    assert all(together.scenario_summary(i) == alone.scenario_summary(i) for i in rows)

@@ -26,7 +26,7 @@ import numpy as np
 from ..actuators import CHANNEL_NAMES, CH_C_MAX, CH_C_MIN, CH_MAX_FORCE, CH_MODE, H_GAIN, H_HELD_DAMPING, H_HELD_FORCE
 from ..actuators import MODE_FORCE, MODE_OFF, MODE_SEMI, N_CHANNELS, healthy
 from ..contact import creep_coefficients
-from ..dynamics import BogieModel
+from ..dynamics import COEFFICIENT_NAMES, BogieModel
 from ..params import FIELDS, BogieParams, ConfigError
 
 
@@ -225,10 +225,18 @@ def _is_channel(value: Any) -> bool:
     return value is not None and not (isinstance(value, str) and value == NO_FAULT)
 
 
-def scenario_model(base: BogieParams, s: Scenario, nominal: BogieModel) -> BogieModel:
-    """The bogie of a scenario (the nominal model itself when nothing changes)."""
+#: Parameters the creep coefficients follow (``contact.creep_coefficients``).
+CREEP_INPUTS = frozenset(("Wpa", "r0", "Rwheel", "Rrail", "E", "nu", "f11", "f12", "f22", "f33"))
+CREEP_NAMES = ("f11", "f12", "f22", "f33")
+_COEFFICIENT_INDEX = {name: k for k, name in enumerate(COEFFICIENT_NAMES)}
+
+
+def scenario_params(base: BogieParams, s: Scenario) -> tuple[BogieParams, frozenset[str]]:
+    """The bogie parameters of a scenario and the names it changes (``base`` itself and none
+    when nothing changes). Factors on one parameter multiply; a conicity replaces ``lam``; a
+    creep factor scales the creep coefficients of the otherwise changed bogie."""
     if not s.factors and s.is_nominal:
-        return nominal
+        return base, frozenset()
     factors = dict(s.factors)
     for name, key in (("primary_longitudinal_stiffness", "Kpx"), ("primary_lateral_stiffness", "Kpy"),
                       ("axle_load", "Wpa")):  # fmt: skip
@@ -238,13 +246,44 @@ def scenario_model(base: BogieParams, s: Scenario, nominal: BogieModel) -> Bogie
     if s.damper_factor != 1.0:
         for key in ("Csx", "Csy"):
             factors[key] = factors.get(key, 1.0) * s.damper_factor
-    params = base.scaled(**factors) if factors else base
+    changes = base.scaled_values(**factors)
     if s.conicity is not None:
-        params = params.replace(lam=s.conicity)
+        changes["lam"] = s.conicity
+    params = base.replace(**changes) if changes else base
     if s.creep_factor != 1.0:
         creep = creep_coefficients(params)
-        params = params.replace(**{k: getattr(creep, k) * s.creep_factor for k in ("f11", "f12", "f22", "f33")})
-    return BogieModel(params)
+        params = params.replace(**{k: getattr(creep, k) * s.creep_factor for k in CREEP_NAMES})
+        changes.update(dict.fromkeys(CREEP_NAMES))
+    return params, frozenset(changes)
+
+
+def scenario_model(base: BogieParams, s: Scenario, nominal: BogieModel) -> BogieModel:
+    """The bogie of a scenario (the nominal model itself when nothing changes)."""
+    params, changed = scenario_params(base, s)
+    return BogieModel(params) if changed else nominal
+
+
+def scenario_coefficients(base: BogieParams, s: Scenario, nominal: BogieModel) -> np.ndarray:
+    """``scenario_model(base, s, nominal).coefficients`` (read-only), bit for bit, without
+    building the model: the nominal vector with the changed entries rewritten, and the creep coefficients
+    computed once, only when an input of theirs changed (a reset's cost)."""
+    params, changed = scenario_params(base, s)
+    if not changed:
+        return nominal.coefficients
+    if nominal.params is not base or "h1" in changed or "h2" in changed:  # the secondary heights: the general path
+        return BogieModel(params).coefficients
+    p = nominal.coefficients.copy()
+    for name in changed:
+        k = _COEFFICIENT_INDEX.get(name)
+        if k is not None and name not in CREEP_NAMES:
+            p[k] = getattr(params, name)
+    if changed & CREEP_INPUTS:
+        set_in_params = all(getattr(params, name) is not None for name in CREEP_NAMES)  # they override the computed ones
+        creep = params if set_in_params else creep_coefficients(params)
+        for name in CREEP_NAMES:
+            p[_COEFFICIENT_INDEX[name]] = getattr(creep, name)
+    p.setflags(write=False)  # as a model's (and one compiled signature for the equilibrium)
+    return p
 
 
 def scenario_health(s: Scenario, channels: np.ndarray) -> np.ndarray:

@@ -157,9 +157,15 @@ def sensor_table(sensors: dict[str, Any], dt: float) -> np.ndarray:
     return table
 
 
-def draw_biases(sensors: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
-    """(N_SENSED,) one episode's biases, SI units (standard deviations :func:`channel_bias`)."""
-    return np.array([rng.normal(0.0, channel_bias(sensors, name)) for name in SENSOR_NAMES])
+def bias_deviations(sensors: dict[str, Any]) -> np.ndarray:
+    """(N_SENSED,) the standard deviations of the per-episode biases (:func:`channel_bias`)."""
+    return np.array([channel_bias(sensors, name) for name in SENSOR_NAMES])
+
+
+def draw_biases(sensors: dict[str, Any], rng: np.random.Generator, deviations: np.ndarray | None = None) -> np.ndarray:
+    """(N_SENSED,) one episode's biases, SI units: one normal draw per channel, in channel
+    order (``deviations``: :func:`bias_deviations`, when the caller has them)."""
+    return rng.normal(0.0, bias_deviations(sensors) if deviations is None else deviations)
 
 
 # ---- compiled: per-row generator, filter, noise ----------------------------------------------

@@ -32,6 +32,7 @@ from ..actuators import (
     CHANNEL_NAMES,
     DAMPING,
     FORCE,
+    H_GAIN,
     H_HELD_DAMPING,
     H_HELD_FORCE,
     MODE_SEMI,
@@ -45,7 +46,8 @@ from ..actuators import (
     healthy_command,
     saturation,
 )
-from ..dynamics import N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, _guiding_forces_row, frame_lateral_accel, state_index
+from ..dynamics import N_COEFFICIENTS, N_INPUTS, N_STATES, P_DELTA, P_L1, P_WPA, BogieModel, _guiding_forces_row, equilibrium_state
+from ..dynamics import frame_lateral_accel, state_index
 from ..integrate import (
     FASTMATH, METHOD_STAGES, OUT_FORCE, OUT_POWER, STATUS_OK, StepChoice, accurate_substep, method_divisors, stable_substep,
 )  # fmt: skip
@@ -68,7 +70,7 @@ from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, CANT_FRAME, CURVAT
 from . import scenario as scenarios
 from .config import MAX_ACCEL, MAX_NUM_ENVS, bogie_params, make_config, max_steps_for
 from .routes import RouteLayout, build_layout
-from .sensors import N_SENSED, SENSOR_NAMES, draw_biases, sense_row, sense_rows, sensor_table
+from .sensors import N_SENSED, SENSOR_NAMES, bias_deviations, draw_biases, sense_row, sense_rows, sensor_table
 
 KMH = 3.6
 _FLOAT_TYPES = (np.dtype(np.float32), np.dtype(np.float64))
@@ -126,10 +128,14 @@ def speed_index(observation_type: str) -> int:
     return N_STATES if observation_type == "state" else len(SENSORS)
 
 
-def sensor_scales(delta: float) -> np.ndarray:
+def sensor_scales(delta: float | np.ndarray) -> np.ndarray:
     """SI value of one observation unit per measured channel (the six ``SENSORS`` and the
-    speed: the observation's scales); ``delta`` is the flange clearance (m)."""
-    return np.array([ACCEL_SCALE, YAW_RATE_SCALE, delta, delta, REL_YAW_SCALE, REL_YAW_SCALE, SPEED_SCALE_KMH / KMH])
+    speed: the observation's scales); ``delta`` is the flange clearance (m), one or (N,) rows."""
+    delta = np.asarray(delta, dtype=np.float64)
+    scales = np.empty(delta.shape + (N_SENSED,))
+    scales[...] = (ACCEL_SCALE, YAW_RATE_SCALE, 0.0, 0.0, REL_YAW_SCALE, REL_YAW_SCALE, SPEED_SCALE_KMH / KMH)
+    scales[..., SENSOR_WHEELSET1_LATERAL] = scales[..., SENSOR_WHEELSET2_LATERAL] = delta
+    return scales
 
 
 def speed_kmh_from_observation(obs: np.ndarray, observation_type: str) -> np.ndarray:
@@ -595,13 +601,15 @@ class HuntingTask:
         self.rngs = [np.random.default_rng() for _ in range(n)]
         self.episode_params: list[dict[str, float]] = [{} for _ in range(n)]
         # actuator health per row (gain, held command), sensor model state per row
-        self.health = np.repeat(healthy()[None], n, axis=0)
+        self._healthy = healthy()
+        self.health = np.repeat(self._healthy[None], n, axis=0)
         self.scenarios: list[scenarios.Scenario] = [scenarios.Scenario() for _ in range(n)]
-        self._episode_draws: list[dict[str, Any]] = [{} for _ in range(n)]  # what reset_rows drew besides the scenario
+        self._episode_draws: list[tuple] = [() for _ in range(n)]  # what reset_rows drew besides the scenario
         self._criterion_on = bool(c["info"]["criterion"])
         self._one_row, self._one_out = np.zeros(1, dtype=np.int64), np.empty((1, N_CRITERION))  # info_dict's buffers
         self.sensors_enabled = bool(c["sensors"]["enabled"])
         self.sensor_table = sensor_table(c["sensors"], c["dt"])
+        self._bias_deviations = bias_deviations(c["sensors"])
         self.sensor_filter = np.zeros((n, N_SENSED))
         self.sensor_bias = np.zeros((n, N_SENSED))
         self.sensor_scale = np.ones((n, N_SENSED))
@@ -682,35 +690,40 @@ class HuntingTask:
     def reset_rows(self, rows: np.ndarray, options: Mapping[str, Any] | None = None) -> None:
         """Start new episodes in ``rows`` (their RNGs must already be seeded). Each row draws, in
         this order from its RNG: its speeds (and route slot), its scenario, its start state, its
-        place on the track and its sensors' biases and noise seed."""
+        place on the track and its sensors' biases and noise seed. The draws are per row; the
+        rest (equilibria aside) is set for all rows at once."""
         options = self._checked_reset_options(options)
         rows = np.atleast_1d(rows)
-        for i in rows:
+        n = rows.size
+        x0 = np.empty((n, N_STATES))
+        coefficients = np.empty((n, N_COEFFICIENTS))
+        draws = np.empty((n, 4))  # start_kmh, end_kmh, accel, distance
+        slots, new_scenarios = [], []
+        active = list(self.channel_names)
+        for j, i in enumerate(rows):
             rng = self.rngs[i]
             start, end, accel, slot = self._draw_speeds(rng, options)
-            scenario = scenarios.draw_scenario(self.config["randomize"], options, rng, list(self.channel_names))
+            scenario = scenarios.draw_scenario(self.config["randomize"], options, rng, active)
             scenario.factors.update(options.get("params", {}) or {})
-            model = scenarios.scenario_model(self.base_params, scenario, self.model)
-            self.episode_params[i] = scenario.factors
-            self.scenarios[i] = scenario
-            x, offsets, yaws, large = self._draw_start_state(model, start, rng)
+            coefficients[j] = p = scenarios.scenario_coefficients(self.base_params, scenario, self.model)
+            x0[j], offsets, yaws, large = self._draw_start_state(p, start, rng)
             distance = slot.start_m if self.on_routes else self._draw_track_position(rng)
-            self._episode_draws[i] = {
-                "start_kmh": float(start), "end_kmh": float(end), "accel_m_per_s2": float(accel),
-                "track_position_m": float(distance),
-                "route": self.route_layout.routes[slot.route_index].name if self.on_routes else None,
-                "route_copy": int(slot.copy) if self.on_routes else None,
-                "initial_offset_m": dict(zip(("y1", "y2", "yb"), map(float, offsets))),
-                "initial_yaw_rad": dict(zip(("psi1", "psi2", "psib"), map(float, yaws))),
-                "large_perturbation": large,
-            }  # fmt: skip
-            self.sim.set_rows(i, x, start / KMH, accel, distance, end_speed=end / KMH, coefficients=model.coefficients)
-            self._set_health(i, scenario)
+            draws[j] = start, end, accel, distance
+            self._episode_draws[i] = (float(start), float(end), float(accel), float(distance), slot, offsets, yaws, large)
             if self.sensors_enabled:
-                self.sensor_bias[i] = draw_biases(self.config["sensors"], rng)
+                self.sensor_bias[i] = draw_biases(self.config["sensors"], rng, self._bias_deviations)
                 self.sensor_rng[i] = np.uint64(rng.integers(1, 2**63))
-                self.sensor_scale[i] = sensor_scales(model.coefficients[P_DELTA])
-            self._clear_episode(i, start, slot)
+            slots.append(slot)
+            new_scenarios.append(scenario)
+        for j, i in enumerate(rows):
+            self.episode_params[i] = new_scenarios[j].factors
+            self.scenarios[i] = new_scenarios[j]
+        self.sim.set_rows(rows, x0, draws[:, 0] / KMH, draws[:, 2], draws[:, 3], end_speed=draws[:, 1] / KMH,
+                          coefficients=coefficients)  # fmt: skip
+        self._set_health(rows, new_scenarios)
+        if self.sensors_enabled:
+            self.sensor_scale[rows] = sensor_scales(coefficients[:, P_DELTA])
+        self._clear_episode(rows, draws[:, 0], slots)
         self.observe(rows)
         if self.sensors_enabled:
             sense_rows(rows.astype(np.int64), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
@@ -759,13 +772,13 @@ class HuntingTask:
             )
         return start, end, accel, slot
 
-    def _draw_start_state(self, model: BogieModel, start_kmh: float,
+    def _draw_start_state(self, coefficients: np.ndarray, start_kmh: float,
                           rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:  # fmt: skip
         """The equilibrium at the start speed plus the initial perturbation: small normal offsets
         and yaws, or (with ``large_perturbation_probability``) offsets of 0.5-1 x
         ``large_perturbation`` with random signs. Returns the state, the offsets, the yaws and
         whether the large perturbation was drawn."""
-        x = model.equilibrium(start_kmh / KMH)
+        x = equilibrium_state(coefficients, start_kmh / KMH)
         sigma = self.config["initial_perturbation"]
         offsets = rng.normal(0.0, sigma, 3)
         yaws = rng.normal(0.0, sigma / (2 * self.base_params.L1), 3)
@@ -783,16 +796,21 @@ class HuntingTask:
         alignment = self.track_input.alignment
         return rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
 
-    def _clear_episode(self, i: int, start_kmh: float, slot: Any) -> None:
-        """Row ``i``'s episode bookkeeping, flags and info at the start of an episode."""
-        self.episode[i] = 0.0
-        self.episode[i, E_ONSET_KMH] = np.nan
-        self.episode[i, E_END_DISTANCE] = slot.end_m if self.on_routes else np.inf
-        self.route_slot[i] = self.route_layout.slots.index(slot) if self.on_routes else -1
-        self.flags[i] = 0
-        self.info[i] = 0.0
-        self.info[i, I_SPEED_KMH] = start_kmh
-        self.info[i, I_ONSET_KMH] = np.nan
+    def _clear_episode(self, rows: np.ndarray, start_kmh: np.ndarray, slots: list[Any]) -> None:
+        """The rows' episode bookkeeping, flags and info at the start of an episode (their start
+        speeds and, on routes, their route slots)."""
+        self.episode[rows] = 0.0
+        self.episode[rows, E_ONSET_KMH] = np.nan
+        if self.on_routes:
+            self.episode[rows, E_END_DISTANCE] = [slot.end_m for slot in slots]
+            self.route_slot[rows] = [self.route_layout.slots.index(slot) for slot in slots]
+        else:
+            self.episode[rows, E_END_DISTANCE] = np.inf
+            self.route_slot[rows] = -1
+        self.flags[rows] = 0
+        self.info[rows] = 0.0
+        self.info[rows, I_SPEED_KMH] = start_kmh
+        self.info[rows, I_ONSET_KMH] = np.nan
 
     def ramp_rows(self, rows: np.ndarray, accel: float, end_kmh: float) -> None:
         """Change the speed ramp of running rows, e.g. ramp down (``accel`` < 0, m/s^2) to
@@ -835,9 +853,16 @@ class HuntingTask:
         slot = self.route_slot[row]
         return None if slot < 0 else self.route_layout.routes[self.route_layout.slots[slot].route_index].name
 
-    def _set_health(self, i: int, scenario: "scenarios.Scenario") -> None:
-        """Row i's actuator health; a stuck channel holds its command from the first step (its lag
-        and delay ring start at the held value)."""
+    def _set_health(self, rows: np.ndarray, row_scenarios: list["scenarios.Scenario"]) -> None:
+        """The rows' actuator health (after ``sim.set_rows``); a stuck channel holds its command
+        from the first step (its lag and delay ring start at the held value)."""
+        self.health[rows] = self._healthy
+        self.health[rows, H_GAIN] = [s.actuator_gain for s in row_scenarios]
+        for i, s in zip(rows, row_scenarios):
+            if s.failed_actuator is not None or s.stuck_actuator is not None:
+                self._set_faulty_health(i, s)
+
+    def _set_faulty_health(self, i: int, scenario: "scenarios.Scenario") -> None:
         self.health[i] = scenarios.scenario_health(scenario, self.channels)
         for k in range(N_CHANNELS):
             held_force, held_damping = self.health[i, H_HELD_FORCE, k], self.health[i, H_HELD_DAMPING, k]
@@ -860,7 +885,21 @@ class HuntingTask:
         in SI units (``sensor_bias``, per channel; None with the sensor model off). The single
         and vector envs put it in the info of each reset as ``scenario``."""
         bias = dict(zip(SENSOR_NAMES, map(float, self.sensor_bias[row]))) if self.sensors_enabled else None
-        return {**self.scenario(row), **self._episode_draws[row], "sensor_bias": bias}
+        return {**self.scenario(row), **self._draws_summary(row), "sensor_bias": bias}
+
+    def _draws_summary(self, row: int) -> dict[str, Any]:
+        """What ``reset_rows`` drew for row's episode besides the scenario (:meth:`scenario_summary`)."""
+        if not self._episode_draws[row]:
+            return {}
+        start, end, accel, distance, slot, offsets, yaws, large = self._episode_draws[row]
+        return {
+            "start_kmh": start, "end_kmh": end, "accel_m_per_s2": accel, "track_position_m": distance,
+            "route": self.route_layout.routes[slot.route_index].name if self.on_routes else None,
+            "route_copy": int(slot.copy) if self.on_routes else None,
+            "initial_offset_m": dict(zip(("y1", "y2", "yb"), map(float, offsets))),
+            "initial_yaw_rad": dict(zip(("psi1", "psi2", "psib"), map(float, yaws))),
+            "large_perturbation": large,
+        }  # fmt: skip
 
     @staticmethod
     def _draw(rng, forced, value, bounds, name) -> float:
