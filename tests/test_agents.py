@@ -129,6 +129,7 @@ def test_passive_closed_loop_critical_speed_matches_the_analysis_suite(env_confi
     assert result["closed_loop_critical_speed_kmh"] <= linear
 
 
+@pytest.mark.slow  # 2.4-6 s warm: make test's 3 minutes on a clean clone
 def test_evaluation_is_deterministic(env_config):
     # bisection to 10 km/h (three steps from the 50 km/h grid) runs the same code as to 1 km/h
     settings = ProtocolSettings(v_min_kmh=300.0, v_max_kmh=500.0, grid_step_kmh=50.0, duration_s=15.0, ramp_seeds=2,
@@ -258,6 +259,7 @@ def test_cli_evaluate_bad_input(capsys, argv, message):
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.slow  # 2.4-6 s warm: make test's 3 minutes on a clean clone
 def test_results_writes_json_table_and_plots_and_resumes(tmp_path, monkeypatch, env_config):
     import bogie_agents.evaluation.results as results
 

@@ -205,6 +205,7 @@ def test_a_bank_with_parameter_factors_runs_the_bogie_the_teacher_is_designed_fo
         assert task.scenarios[i].as_dict() == s.as_dict()
 
 
+@pytest.mark.slow  # 2.4-6 s warm: make test's 3 minutes on a clean clone
 def test_teacher_registers_follow_the_commands_sent_not_its_own(bank_and_teacher):
     """Driven by random commands, the bank's labels stay those of PrivilegedControllers whose loop
     states advance with the same commands; advanced with their own labels instead, they differ."""

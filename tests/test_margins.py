@@ -466,6 +466,7 @@ def test_controller_model_hook_is_used(v1_config, v1_lqg_loop):
     np.testing.assert_allclose(ours, scaled, atol=1e-9)
 
 
+@pytest.mark.slow  # 2.4-6 s warm: make test's 3 minutes on a clean clone
 def test_residual_policy_model(v1_config, v1_lqg, pretrained_v0):
     """A residual policy clip(LQG + scale * PPO): the baseline's model plus scale x the PPO's
     autograd Jacobian (linear_models.residual_controller_model), against its act, at its own
@@ -519,6 +520,7 @@ def test_v1_lqg_margins_hold_in_nonlinear_simulation(v1_config, v1_lqg, v1_lqg_l
     _assert_verdicts(_verdicts(v1_lqg, v1_config, model, v1_lqg_loop, v1_lqg_margins))
 
 
+@pytest.mark.slow  # 2.4-6 s warm: make test's 3 minutes on a clean clone
 def test_v1_sensor_model_lqg_model_matches_act_and_its_delay_verdicts_hold(v1_config, v1_sensor_lqg):
     """The v1 LQG (delay registers, sensor filters and bias states in its filter): its linear
     controller model reproduces act(), and in the env itself (nonlinear bogie, rate limits,

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import bogie_env
 from bogie_env import _numba_cache
 
@@ -23,6 +25,7 @@ def run(code: str, *paths: Path) -> str:
     return done.stdout.strip()
 
 
+@pytest.mark.slow  # 2.4-6 s warm: make test's 3 minutes on a clean clone
 def test_a_kernel_sees_an_edit_of_a_function_it_inlines_from_another_module(tmp_path):
     """numba keys b.g's cache on b.py only; without the guard the second run prints 2.0."""
     package = tmp_path / "minipkg"

@@ -120,6 +120,7 @@ def test_track_weight_per_row():
         TrackSettings(speeds_kmh=(150.0, 240.0), w_track=(0.3, 0.1, 0.1)).track_weight(150.0)
 
 
+@pytest.mark.slow  # 2.4-6 s warm: make test's 3 minutes on a clean clone
 def test_retune_uses_each_rows_own_track_weight(setup):
     """Rows are tuned independently: a per-row weight gives, at each row, the row of a run with
     that weight for every row (a bug that uses one row's weight everywhere, or another row's,
