@@ -396,10 +396,12 @@ def test_a_resets_bogie_is_its_scenarios_model_bit_for_bit(randomize):
     assert scenarios.scenario_coefficients(base, scenarios.Scenario(), nominal) is nominal.coefficients
 
 
-def test_many_rows_reset_at_once_as_each_alone():
-    config = {**ALWAYS_FAULTY, "randomize": {**V1_DRAWS, **ALWAYS_FAULTY["randomize"]},
-              "speed": {"start_kmh_range": [200.0, 300.0], "end_kmh": 400.0, "accel": 1.0}}  # fmt: skip
-    together, alone = v1_task(config, n=6), v1_task(config, n=6)
+@pytest.mark.parametrize("variant", ["v1", "v1_route"])
+def test_many_rows_reset_at_once_as_each_alone(variant):
+    config = {"randomize": {**V1_DRAWS, **ALWAYS_FAULTY["randomize"]}}
+    if variant == "v1":
+        config["speed"] = {"start_kmh_range": [200.0, 300.0], "end_kmh": 400.0, "accel": 1.0}
+    together, alone = (HuntingTask(6, make_config(config, variant=variant)) for _ in range(2))
     rows = np.arange(6)
     together.seed_rows(rows, list(range(10, 16)))
     together.reset_rows(rows)

@@ -718,12 +718,14 @@ class HuntingTask:
         for j, i in enumerate(rows):
             self.episode_params[i] = new_scenarios[j].factors
             self.scenarios[i] = new_scenarios[j]
-        self.sim.set_rows(rows, x0, draws[:, 0] / KMH, draws[:, 2], draws[:, 3], end_speed=draws[:, 1] / KMH,
-                          coefficients=coefficients)  # fmt: skip
-        self._set_health(rows, new_scenarios)
+        # one row (a single env's reset) is set by basic indexing, many by one fancy index each
+        at, sel = (int(rows[0]), 0) if n == 1 else (rows, slice(None))
+        self.sim.set_rows(at, x0[sel], draws[sel, 0] / KMH, draws[sel, 2], draws[sel, 3], end_speed=draws[sel, 1] / KMH,
+                          coefficients=coefficients[sel])  # fmt: skip
+        self._set_health(at, new_scenarios)
         if self.sensors_enabled:
-            self.sensor_scale[rows] = sensor_scales(coefficients[:, P_DELTA])
-        self._clear_episode(rows, draws[:, 0], slots)
+            self.sensor_scale[at] = sensor_scales(coefficients[sel, P_DELTA])
+        self._clear_episode(at, draws[sel, 0], slots)
         self.observe(rows)
         if self.sensors_enabled:
             sense_rows(rows.astype(np.int64), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
@@ -796,14 +798,14 @@ class HuntingTask:
         alignment = self.track_input.alignment
         return rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
 
-    def _clear_episode(self, rows: np.ndarray, start_kmh: np.ndarray, slots: list[Any]) -> None:
-        """The rows' episode bookkeeping, flags and info at the start of an episode (their start
-        speeds and, on routes, their route slots)."""
+    def _clear_episode(self, rows: np.ndarray | int, start_kmh: np.ndarray | float, slots: list[Any]) -> None:
+        """The rows' (or one row's) episode bookkeeping, flags and info at the start of an
+        episode (their start speeds and, on routes, their route slots)."""
         self.episode[rows] = 0.0
         self.episode[rows, E_ONSET_KMH] = np.nan
         if self.on_routes:
-            self.episode[rows, E_END_DISTANCE] = [slot.end_m for slot in slots]
-            self.route_slot[rows] = [self.route_layout.slots.index(slot) for slot in slots]
+            self.episode[rows, E_END_DISTANCE] = np.reshape([slot.end_m for slot in slots], np.shape(rows))
+            self.route_slot[rows] = np.reshape([self.route_layout.slots.index(slot) for slot in slots], np.shape(rows))
         else:
             self.episode[rows, E_END_DISTANCE] = np.inf
             self.route_slot[rows] = -1
@@ -853,12 +855,12 @@ class HuntingTask:
         slot = self.route_slot[row]
         return None if slot < 0 else self.route_layout.routes[self.route_layout.slots[slot].route_index].name
 
-    def _set_health(self, rows: np.ndarray, row_scenarios: list["scenarios.Scenario"]) -> None:
-        """The rows' actuator health (after ``sim.set_rows``); a stuck channel holds its command
-        from the first step (its lag and delay ring start at the held value)."""
+    def _set_health(self, rows: np.ndarray | int, row_scenarios: list["scenarios.Scenario"]) -> None:
+        """The rows' (or one row's) actuator health (after ``sim.set_rows``); a stuck channel
+        holds its command from the first step (its lag and delay ring start at the held value)."""
         self.health[rows] = self._healthy
-        self.health[rows, H_GAIN] = [s.actuator_gain for s in row_scenarios]
-        for i, s in zip(rows, row_scenarios):
+        self.health[rows, H_GAIN] = np.reshape([s.actuator_gain for s in row_scenarios], np.shape(rows) + (N_CHANNELS,))
+        for i, s in zip(np.atleast_1d(rows), row_scenarios):
             if s.failed_actuator is not None or s.stuck_actuator is not None:
                 self._set_faulty_health(i, s)
 
