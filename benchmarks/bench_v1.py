@@ -23,8 +23,10 @@ the calling thread (run it with ``BOGIE_NUM_THREADS=1``), beside its pieces: the
 simulator's interval, the task's reward, termination and observation, and the sensor model.
 
 ``--resets`` steps v4 and v0 at N = 4096 for ``--seconds`` as the default run does and reports
-the share of the wall clock spent in ``reset_rows`` (episodes that end start again in place, one
-row at a time in Python), its time per row, and the rate without it.
+the share of the wall clock spent in ``reset_rows`` (episodes that end start again in place; each
+row draws in Python), its time per row, and the rate without it; then the time per row of
+``reset_rows`` alone, with no steps between, in batches of 1, 3 and 4096 rows (best of 5 rounds):
+one row is a single env's reset, a few rows a vector env's autoreset, 4096 a vector env's reset.
 
 ``--single`` times the single env of each id the way a Gymnasium user steps it
 (``bench_env.rate_single``: zero actions, resets included) beside Gymnasium's Pendulum-v1, raw
@@ -46,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -90,6 +93,24 @@ def reset_share(seconds: float, n: int = 4096) -> None:
         print(f"{variant or 'v0'}: {steps * n / wall / 1e6:.2f} M env-steps/s, {steps} steps, {resets} resets, resets "
               f"{in_reset / wall:.0%} of the wall clock at {in_reset / max(resets, 1) * 1e3:.3f} ms per row; without them "
               f"{steps * n / (wall - in_reset) / 1e6:.2f} M/s (load {os.getloadavg()[0]:.2f})", flush=True)  # fmt: skip
+    for variant in ("v4", None):
+        print(f"{variant or 'v0'} reset_rows alone, ms per row: " + ", ".join(
+            f"{batch} rows {reset_cost(make_task(variant, n), batch) * 1e3:.3f}" for batch in (1, 3, n)), flush=True)  # fmt: skip
+
+
+def reset_cost(task, batch: int, rounds: int = 5, rows: int = 3000) -> float:
+    """Seconds per row of ``task.reset_rows`` in batches of ``batch`` rows, best of ``rounds``."""
+    import numpy as np
+
+    batches = [np.arange(i, i + batch) % task.num_envs for i in range(0, max(rows, batch), batch)]
+    task.reset_rows(batches[0])
+    best = math.inf
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        for b in batches:
+            task.reset_rows(b)
+        best = min(best, (time.perf_counter() - t0) / (len(batches) * batch))
+    return best
 
 
 def measure(chunks: int) -> dict:

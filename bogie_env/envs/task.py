@@ -128,12 +128,13 @@ def speed_index(observation_type: str) -> int:
     return N_STATES if observation_type == "state" else len(SENSORS)
 
 
+_SCALES_BUT_DELTA = np.array([ACCEL_SCALE, YAW_RATE_SCALE, 0.0, 0.0, REL_YAW_SCALE, REL_YAW_SCALE, SPEED_SCALE_KMH / KMH])
+
+
 def sensor_scales(delta: float | np.ndarray) -> np.ndarray:
     """SI value of one observation unit per measured channel (the six ``SENSORS`` and the
     speed: the observation's scales); ``delta`` is the flange clearance (m), one or (N,) rows."""
-    delta = np.asarray(delta, dtype=np.float64)
-    scales = np.empty(delta.shape + (N_SENSED,))
-    scales[...] = (ACCEL_SCALE, YAW_RATE_SCALE, 0.0, 0.0, REL_YAW_SCALE, REL_YAW_SCALE, SPEED_SCALE_KMH / KMH)
+    scales = _SCALES_BUT_DELTA.copy() if np.ndim(delta) == 0 else np.tile(_SCALES_BUT_DELTA, (len(delta), 1))
     scales[..., SENSOR_WHEELSET1_LATERAL] = scales[..., SENSOR_WHEELSET2_LATERAL] = delta
     return scales
 
@@ -859,7 +860,7 @@ class HuntingTask:
         """The rows' (or one row's) actuator health (after ``sim.set_rows``); a stuck channel
         holds its command from the first step (its lag and delay ring start at the held value)."""
         self.health[rows] = self._healthy
-        self.health[rows, H_GAIN] = np.reshape([s.actuator_gain for s in row_scenarios], np.shape(rows) + (N_CHANNELS,))
+        self.health[rows, H_GAIN] = row_scenarios[0].actuator_gain if np.ndim(rows) == 0 else [s.actuator_gain for s in row_scenarios]
         for i, s in zip(np.atleast_1d(rows), row_scenarios):
             if s.failed_actuator is not None or s.stuck_actuator is not None:
                 self._set_faulty_health(i, s)
