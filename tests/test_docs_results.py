@@ -197,3 +197,23 @@ def test_evaluate_puts_the_score_first_against_the_passive_row_of_its_run(monkey
     assert "score (" not in capsys.readouterr().out
     assert cli_main(["evaluate", "--policy", "passive", "--policy", "skyhook", "--parts", "critical"]) == 0
     assert "skyhook 1.25" in capsys.readouterr().out
+
+
+def test_the_per_seed_envelope_of_the_published_columns():
+    """studies/per_seed_envelope.py against the protocol's own column values: one policy's
+    envelope is its column (the lowest seed); several policies' is at least the best of them,
+    and per seed the best of their values."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "studies"))
+    from per_seed_envelope import envelope
+
+    results = json.loads(RESULTS.read_text())
+    policies = ["lqg_rate", "adaptive_lqg_rate", "robust_steering"]
+    for column in ("by_conicity/0.05", "by_conicity/0.1", "by_conicity/0.3", "worst_case"):
+        alone = [envelope(results, column, [p]) for p in policies]
+        assert all(a["envelope_kmh"] == a["policies"][p]["kmh"] for a, p in zip(alone, policies))
+        together = envelope(results, column, policies)
+        assert together["envelope_kmh"] >= max(a["envelope_kmh"] for a in alone)
+        columns = zip(*(a["envelope_per_seed_kmh"] for a in alone))
+        assert together["envelope_per_seed_kmh"] == [max(values) for values in columns]
