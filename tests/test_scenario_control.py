@@ -415,3 +415,55 @@ def test_many_rows_reset_at_once_as_each_alone(variant):
     for name in ("coefficients", "lag", "delay", "motion"):
         assert np.array_equal(getattr(together.sim, name), getattr(alone.sim, name), equal_nan=True), name
     assert all(together.scenario_summary(i) == alone.scenario_summary(i) for i in rows)
+
+
+def _row_snapshot(task, i):
+    return (task.states[i].copy(), task.obs[i].copy(), task.health[i].copy(), task.sensor_bias[i].copy(),
+            int(task.sensor_rng[i]), task.scenario_summary(i))  # fmt: skip
+
+
+def _same_snapshot(a, b):
+    return all(np.array_equal(x, y, equal_nan=True) for x, y in zip(a[:4], b[:4])) and a[4:] == b[4:]
+
+
+def test_a_row_given_twice_keeps_its_last_draw_as_if_reset_twice():
+    config = {**FIXED, "randomize": {"actuator_failure_probability": 0.4, "actuator_stuck_probability": 0.4,
+                                     "actuator_gain": [0.8, 1.25]}}  # fmt: skip
+    twice, by_hand = v1_task(config, n=3), v1_task(config, n=3)
+    for task in (twice, by_hand):
+        task.seed_rows(np.arange(3), [5, 105, 205])
+    twice.reset_rows(np.array([1, 1, 0]))
+    for i in (1, 1, 0):
+        by_hand.reset_rows(np.array([i]))
+    first = v1_task(config, n=3)
+    first.seed_rows(np.arange(3), [5, 105, 205])
+    first.reset_rows(np.array([1]))
+    assert first.scenarios[1].stuck_actuator is not None  # row 1's first draw is faulty
+    assert {twice.scenarios[1].failed_actuator, twice.scenarios[1].stuck_actuator} == {None}  # its second is not
+    for i in range(3):  # the episode; the first observation's noise is drawn once per mention
+        a, b = _row_snapshot(twice, i), _row_snapshot(by_hand, i)
+        assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in (0, 2, 3)) and a[5] == b[5], i
+    assert np.array_equal(twice.sim.lag, by_hand.sim.lag) and np.array_equal(twice.sim.delay, by_hand.sim.delay)
+
+
+def test_a_reset_that_raises_changes_no_rows_episode_and_no_rows_is_a_no_op():
+    task = v1_task({"randomize": V1_DRAWS}, n=4)
+    task.seed_rows(np.arange(4), [0, 1, 2, 3])
+    task.reset_rows(np.arange(4))
+    before = [_row_snapshot(task, i) for i in range(4)]
+    # Wpa x 2.3 x the drawn axle load (0.8-1.2) is in range for some rows and not for others
+    with pytest.raises(ConfigError, match="Wpa"):
+        task.reset_rows(np.arange(4), {"params": {"Wpa": 2.3}})
+    assert all(_same_snapshot(_row_snapshot(task, i), before[i]) for i in range(4))
+    task.reset_rows(np.array([], dtype=np.int64))
+    assert all(_same_snapshot(_row_snapshot(task, i), before[i]) for i in range(4))
+    venv = BogieHuntingVectorEnv(2, variant="v1")
+    venv.reset(seed=0)
+    obs, _ = venv.reset(options={"reset_mask": np.zeros(2, dtype=bool)})
+    assert obs.shape == (2, venv.single_observation_space.shape[0])
+
+
+def test_a_factor_on_lam_is_checked_even_where_a_conicity_replaces_it():
+    task = v1_task({"randomize": {"conicity": [0.1, 0.2]}})
+    with pytest.raises(ConfigError, match="'lam'"):
+        reset(task, 0, {"params": {"lam": 100.0}})

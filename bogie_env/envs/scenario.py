@@ -27,7 +27,7 @@ from ..actuators import CHANNEL_NAMES, CH_C_MAX, CH_C_MIN, CH_MAX_FORCE, CH_MODE
 from ..actuators import MODE_FORCE, MODE_OFF, MODE_SEMI, N_CHANNELS, healthy
 from ..contact import creep_coefficients
 from ..dynamics import COEFFICIENT_NAMES, BogieModel
-from ..params import FIELDS, BogieParams, ConfigError
+from ..params import FIELDS, BogieParams, ConfigError, validate_value
 
 
 @dataclass(frozen=True)
@@ -248,6 +248,8 @@ def scenario_params(base: BogieParams, s: Scenario) -> tuple[BogieParams, frozen
             factors[key] = factors.get(key, 1.0) * s.damper_factor
     changes = base.scaled_values(**factors)
     if s.conicity is not None:
+        if "lam" in changes:  # a factor on lam is checked, as the scaled bogie's is, before the conicity replaces it
+            validate_value("lam", changes["lam"])
         changes["lam"] = s.conicity
     params = base.replace(**changes) if changes else base
     if s.creep_factor != 1.0:

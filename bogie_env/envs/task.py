@@ -691,15 +691,21 @@ class HuntingTask:
     def reset_rows(self, rows: np.ndarray, options: Mapping[str, Any] | None = None) -> None:
         """Start new episodes in ``rows`` (their RNGs must already be seeded). Each row draws, in
         this order from its RNG: its speeds (and route slot), its scenario, its start state, its
-        place on the track and its sensors' biases and noise seed. The draws are per row; the
-        rest (equilibria aside) is set for all rows at once."""
+        place on the track and its sensors' biases and noise seed. Every row is drawn before any
+        is set, so a reset that raises (a bad option for one row) changes no row's episode (the
+        rows' random streams have moved on); a row given twice keeps its last draw (its first
+        observation's noise is drawn once per mention). The rest (equilibria aside) is set for
+        all rows at once."""
         options = self._checked_reset_options(options)
         rows = np.atleast_1d(rows)
         n = rows.size
+        if n == 0:
+            return
         x0 = np.empty((n, N_STATES))
         coefficients = np.empty((n, N_COEFFICIENTS))
         draws = np.empty((n, 4))  # start_kmh, end_kmh, accel, distance
-        slots, new_scenarios = [], []
+        biases, noise_seeds = np.empty((n, N_SENSED)), np.empty(n, dtype=np.uint64)
+        slots, new_scenarios, episode_draws = [], [], []
         active = list(self.channel_names)
         for j, i in enumerate(rows):
             rng = self.rngs[i]
@@ -710,28 +716,43 @@ class HuntingTask:
             x0[j], offsets, yaws, large = self._draw_start_state(p, start, rng)
             distance = slot.start_m if self.on_routes else self._draw_track_position(rng)
             draws[j] = start, end, accel, distance
-            self._episode_draws[i] = (float(start), float(end), float(accel), float(distance), slot, offsets, yaws, large)
+            episode_draws.append((float(start), float(end), float(accel), float(distance), slot, offsets, yaws, large))
             if self.sensors_enabled:
-                self.sensor_bias[i] = draw_biases(self.config["sensors"], rng, self._bias_deviations)
-                self.sensor_rng[i] = np.uint64(rng.integers(1, 2**63))
+                biases[j] = draw_biases(self.config["sensors"], rng, self._bias_deviations)
+                noise_seeds[j] = rng.integers(1, 2**63)
             slots.append(slot)
             new_scenarios.append(scenario)
-        for j, i in enumerate(rows):
-            self.episode_params[i] = new_scenarios[j].factors
-            self.scenarios[i] = new_scenarios[j]
+        last = self._last_of_each_row(rows)
+        for j in last:
+            i = rows[j]
+            self.episode_params[i], self.scenarios[i] = new_scenarios[j].factors, new_scenarios[j]
+            self._episode_draws[i] = episode_draws[j]
+            if self.sensors_enabled:
+                self.sensor_bias[i], self.sensor_rng[i] = biases[j], noise_seeds[j]
         # one row (a single env's reset) is set by basic indexing, many by one fancy index each
-        at, sel = (int(rows[0]), 0) if n == 1 else (rows, slice(None))
+        at, sel = (int(rows[last[0]]), int(last[0])) if last.size == 1 else (rows[last], last)
         self.sim.set_rows(at, x0[sel], draws[sel, 0] / KMH, draws[sel, 2], draws[sel, 3], end_speed=draws[sel, 1] / KMH,
                           coefficients=coefficients[sel])  # fmt: skip
-        self._set_health(at, new_scenarios)
+        self._set_health(at, [new_scenarios[j] for j in last])
         if self.sensors_enabled:
             self.sensor_scale[at] = sensor_scales(coefficients[sel, P_DELTA])
-        self._clear_episode(at, draws[sel, 0], slots)
+        self._clear_episode(at, draws[sel, 0], [slots[j] for j in last])
         self.observe(rows)
         if self.sensors_enabled:
             sense_rows(rows.astype(np.int64), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
                        self.sensor_rng, self.sensor_table, True, OBS_BOUND, self.sensing[-1])  # fmt: skip
         self._add_noise(rows)
+
+    def _last_of_each_row(self, rows: np.ndarray) -> np.ndarray:
+        """Positions in ``rows`` of each row's last mention (a negative index names the same row
+        as its positive one), in order."""
+        if rows.size == 1:
+            return np.zeros(1, dtype=np.int64)
+        if rows[0] >= 0 and (rows[1:] > rows[:-1]).all():  # increasing (np.nonzero's, an autoreset's): all distinct
+            return np.arange(rows.size)
+        canonical = np.asarray(rows, dtype=np.int64) % self.num_envs
+        _, first_from_end = np.unique(canonical[::-1], return_index=True)
+        return np.sort(rows.size - 1 - first_from_end)
 
     def _checked_reset_options(self, options: Mapping[str, Any] | None) -> dict[str, Any]:
         """``options`` as a dict, every key and the shape of ``params`` checked by name."""
