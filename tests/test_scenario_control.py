@@ -26,7 +26,8 @@ from bogie_env.dynamics import P_WPA, BogieModel, state_index
 from bogie_env.envs.config import bogie_params, make_config
 from bogie_env.envs.hunting_env import BogieHuntingEnv
 from bogie_env.envs.sensors import S_NOISE_RMS, SENSOR_NAMES
-from bogie_env.envs.task import CRITERION_FIELDS, Y1, Y2, HuntingTask
+from bogie_env.envs import task as task_module
+from bogie_env.envs.task import CRITERION_FIELDS, FANCY_RESET_MIN_ROWS, Y1, Y2, HuntingTask
 from bogie_env.envs.vector import BogieHuntingVectorEnv
 from bogie_env.params import ConfigError
 from bogie_env.track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2
@@ -401,9 +402,10 @@ def test_many_rows_reset_at_once_as_each_alone(variant):
     config = {"randomize": {**V1_DRAWS, **ALWAYS_FAULTY["randomize"]}}
     if variant == "v1":
         config["speed"] = {"start_kmh_range": [200.0, 300.0], "end_kmh": 400.0, "accel": 1.0}
-    together, alone = (HuntingTask(6, make_config(config, variant=variant)) for _ in range(2))
-    rows = np.arange(6)
-    together.seed_rows(rows, list(range(10, 16)))
+    n = 10  # at least FANCY_RESET_MIN_ROWS: set with one fancy index per array, against row by row
+    together, alone = (HuntingTask(n, make_config(config, variant=variant)) for _ in range(2))
+    rows = np.arange(n)
+    together.seed_rows(rows, list(range(10, 10 + n)))
     together.reset_rows(rows)
     for i in rows:
         alone.seed_rows(np.array([i]), [10 + i])
@@ -426,7 +428,9 @@ def _same_snapshot(a, b):
     return all(np.array_equal(x, y, equal_nan=True) for x, y in zip(a[:4], b[:4])) and a[4:] == b[4:]
 
 
-def test_a_row_given_twice_keeps_its_last_draw_as_if_reset_twice():
+@pytest.mark.parametrize("fancy_min_rows", [FANCY_RESET_MIN_ROWS, 1])
+def test_a_row_given_twice_keeps_its_last_draw_as_if_reset_twice(fancy_min_rows, monkeypatch):
+    monkeypatch.setattr(task_module, "FANCY_RESET_MIN_ROWS", fancy_min_rows)
     config = {**FIXED, "randomize": {"actuator_failure_probability": 0.4, "actuator_stuck_probability": 0.4,
                                      "actuator_gain": [0.8, 1.25]}}  # fmt: skip
     twice, by_hand = v1_task(config, n=3), v1_task(config, n=3)

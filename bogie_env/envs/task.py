@@ -131,6 +131,10 @@ def speed_index(observation_type: str) -> int:
 _SCALES_BUT_DELTA = np.array([ACCEL_SCALE, YAW_RATE_SCALE, 0.0, 0.0, REL_YAW_SCALE, REL_YAW_SCALE, SPEED_SCALE_KMH / KMH])
 
 
+#: From this many rows a reset sets them with one fancy index per array, below it row by row.
+FANCY_RESET_MIN_ROWS = 8
+
+
 def sensor_scales(delta: float | np.ndarray) -> np.ndarray:
     """SI value of one observation unit per measured channel (the six ``SENSORS`` and the
     speed: the observation's scales); ``delta`` is the flange clearance (m), one or (N,) rows."""
@@ -723,20 +727,23 @@ class HuntingTask:
             slots.append(slot)
             new_scenarios.append(scenario)
         last = self._last_of_each_row(rows)
-        for j in last:
+        members = last.tolist()
+        for j in members:
             i = rows[j]
             self.episode_params[i], self.scenarios[i] = new_scenarios[j].factors, new_scenarios[j]
             self._episode_draws[i] = episode_draws[j]
             if self.sensors_enabled:
                 self.sensor_bias[i], self.sensor_rng[i] = biases[j], noise_seeds[j]
-        # one row (a single env's reset) is set by basic indexing, many by one fancy index each
-        at, sel = (int(rows[last[0]]), int(last[0])) if last.size == 1 else (rows[last], last)
-        self.sim.set_rows(at, x0[sel], draws[sel, 0] / KMH, draws[sel, 2], draws[sel, 3], end_speed=draws[sel, 1] / KMH,
-                          coefficients=coefficients[sel])  # fmt: skip
-        self._set_health(at, [new_scenarios[j] for j in last])
-        if self.sensors_enabled:
-            self.sensor_scale[at] = sensor_scales(coefficients[sel, P_DELTA])
-        self._clear_episode(at, draws[sel, 0], [slots[j] for j in last])
+        # a few rows (a single env's reset, an autoreset's) are set one by one by basic indexing,
+        # more by one fancy index each: the cheaper of the two
+        by_row = len(members) < FANCY_RESET_MIN_ROWS
+        for at, sel, group in [(int(rows[j]), j, (j,)) for j in members] if by_row else [(rows[last], last, members)]:
+            self.sim.set_rows(at, x0[sel], draws[sel, 0] / KMH, draws[sel, 2], draws[sel, 3], end_speed=draws[sel, 1] / KMH,
+                              coefficients=coefficients[sel])  # fmt: skip
+            self._set_health(at, [new_scenarios[j] for j in group])
+            if self.sensors_enabled:
+                self.sensor_scale[at] = sensor_scales(coefficients[sel, P_DELTA])
+            self._clear_episode(at, draws[sel, 0], [slots[j] for j in group])
         self.observe(rows)
         if self.sensors_enabled:
             sense_rows(rows.astype(np.int64), self.obs, self.sensor_filter, self.sensor_bias, self.sensor_scale,
