@@ -551,9 +551,7 @@ def check_speed(speed: np.ndarray | float, name: str = "speed") -> np.ndarray:
     if type(speed) in (float, np.float64) and MIN_SPEED <= speed <= MAX_SPEED:  # a scalar in range (resets: twice a row)
         return np.asarray(speed, dtype=np.float64)
     v = np.asarray(speed, dtype=np.float64)
-    if v.size == 1 and MIN_SPEED <= v.item() <= MAX_SPEED:  # one in range (a reset's row)
-        return v
-    if v.size > 1 and MIN_SPEED <= v.min() and v.max() <= MAX_SPEED:  # all in range (NaN fails the comparisons)
+    if v.size and MIN_SPEED <= v.min() and v.max() <= MAX_SPEED:  # all in range (NaN fails the comparisons)
         return v
     bad = ~np.isfinite(v) | (v < MIN_SPEED) | (v > MAX_SPEED)
     if np.any(bad):
