@@ -27,6 +27,7 @@ the share of the wall clock spent in ``reset_rows`` (episodes that end start aga
 row draws in Python), its time per row, and the rate without it; then the time per row of
 ``reset_rows`` alone, with no steps between, in batches of 1, 3 and 4096 rows (best of 5 rounds):
 one row is a single env's reset, a few rows a vector env's autoreset, 4096 a vector env's reset.
+With ``--cpu`` it reports only the latter, in CPU time, per tree (``--trees`` interleaved, as below).
 
 ``--single`` times the single env of each id the way a Gymnasium user steps it
 (``bench_env.rate_single``: zero actions, resets included) beside Gymnasium's Pendulum-v1, raw
@@ -42,6 +43,7 @@ ratios to Pendulum-v1 of one round are the figures.
     python benchmarks/bench_v1.py --resets                                   # the resets' share at N = 4096
     python benchmarks/bench_v1.py --cpu                                      # this tree, CPU time
     python benchmarks/bench_v1.py --cpu --trees /tmp/before . --rounds 3     # trees interleaved
+    python benchmarks/bench_v1.py --cpu --resets --trees /tmp/before . --rounds 3   # reset_rows alone, trees interleaved
 """
 
 from __future__ import annotations
@@ -98,7 +100,7 @@ def reset_share(seconds: float, n: int = 4096) -> None:
             f"{batch} rows {reset_cost(make_task(variant, n), batch) * 1e3:.3f}" for batch in (1, 3, n)), flush=True)  # fmt: skip
 
 
-def reset_cost(task, batch: int, rounds: int = 5, rows: int = 3000) -> float:
+def reset_cost(task, batch: int, rounds: int = 5, rows: int = 3000, clock=time.perf_counter) -> float:
     """Seconds per row of ``task.reset_rows`` in batches of ``batch`` rows, best of ``rounds``."""
     import numpy as np
 
@@ -106,11 +108,22 @@ def reset_cost(task, batch: int, rounds: int = 5, rows: int = 3000) -> float:
     task.reset_rows(batches[0])
     best = math.inf
     for _ in range(rounds):
-        t0 = time.perf_counter()
+        t0 = clock()
         for b in batches:
             task.reset_rows(b)
-        best = min(best, (time.perf_counter() - t0) / (len(batches) * batch))
+        best = min(best, (clock() - t0) / (len(batches) * batch))
     return best
+
+
+def measure_resets(chunks: int, n: int = 4096) -> dict:
+    """--cpu --resets: CPU microseconds per row of ``reset_rows`` alone, v4 and v0, in batches of 1,
+    3 and ``n`` rows (best of ``chunks`` rounds)."""
+    out = {}
+    for variant in ("v4", None):
+        task = make_task(variant, n)
+        for batch in (1, 3, n):
+            out[f"{variant or 'v0'}_reset{batch}_us"] = reset_cost(task, batch, rounds=chunks, clock=time.process_time) * 1e6
+    return out
 
 
 def measure(chunks: int) -> dict:
@@ -224,7 +237,7 @@ def row_parts(chunks: int, n: int = 4096) -> dict:
 def cpu_main(args: argparse.Namespace) -> None:
     """--cpu: env steps per CPU second, this tree or ``--trees`` interleaved in fresh processes."""
     if args.child or not args.trees:
-        print(json.dumps(measure(args.chunks)))
+        print(json.dumps(measure_resets(args.chunks) if args.resets else measure(args.chunks)))
         return
     here = os.path.dirname(os.path.abspath(__file__))
     runs: dict[str, list[dict]] = {t: [] for t in args.trees}
@@ -232,17 +245,18 @@ def cpu_main(args: argparse.Namespace) -> None:
         for tree in args.trees:
             tree_abs = os.path.abspath(tree)
             env = {**os.environ, "BOGIE_NUM_THREADS": "1", "PYTHONPATH": f"{here}:{tree_abs}"}
-            res = subprocess.run([sys.executable, __file__, "--cpu", "--child", "--chunks", str(args.chunks)], env=env,
+            res = subprocess.run([sys.executable, __file__, "--cpu", "--child", "--chunks", str(args.chunks)]
+                                 + ["--resets"] * args.resets, env=env,
                                  capture_output=True, text=True, check=True)  # fmt: skip
             fig = json.loads(res.stdout.strip().splitlines()[-1])
             runs[tree].append(fig)
-            print(f"round {r} load {os.getloadavg()[0]:.1f} {tree}: " + ", ".join(f"{k} {v / 1e3:.0f} k" for k, v in fig.items()),
-                  flush=True)  # fmt: skip
-    print("medians (k env-steps per CPU second) and v0/v1:")
+            figures = ", ".join(f"{k} {v:.1f}" if args.resets else f"{k} {v / 1e3:.0f} k" for k, v in fig.items())
+            print(f"round {r} load {os.getloadavg()[0]:.1f} {tree}: {figures}", flush=True)
+    print("medians (µs per row)" if args.resets else "medians (k env-steps per CPU second) and v0/v1:")
     base = args.trees[0]
     for tree in args.trees:
         med = {k: statistics.median(f[k] for f in runs[tree]) for k in runs[tree][0]}
-        line = ", ".join(f"{k} {v / 1e3:.0f}" for k, v in med.items())
+        line = ", ".join(f"{k} {v:.1f}" if args.resets else f"{k} {v / 1e3:.0f}" for k, v in med.items())
         ratios = ", ".join(f"{v}/v0 N{n} {med[f'{v}_N{n}'] / med[f'v0_N{n}']:.2f}" for n in (1, 4096) for v in VERSIONS
                            if f"{v}_N{n}" in med)  # fmt: skip
         vs = ""
@@ -345,7 +359,7 @@ def main() -> None:
     parser.add_argument("--row-parts", action="store_true", help="CPU time per row of the step's pieces (see the docstring)")
     parser.add_argument("--resets", action="store_true", help="the resets' share of the wall clock (see the docstring)")
     args = parser.parse_args()
-    if args.resets:
+    if args.resets and not args.cpu:
         reset_share(args.seconds)
         return
     if args.single:

@@ -135,6 +135,10 @@ def _known() -> str:
 
 def validate_value(name: str, value: Any) -> float | None:
     """Return ``value`` as a float if parameter ``name`` may take it, else raise ConfigError."""
+    spec = FIELDS.get(name)
+    if type(value) is float and spec is not None and value <= spec.high and math.isfinite(value):  # the common case
+        if value > spec.low or (spec.low_inclusive and value == spec.low):
+            return value
     if name not in FIELDS:
         raise ConfigError(f"unknown parameter {name!r}; known parameters: {_known()}")
     spec = FIELDS[name]

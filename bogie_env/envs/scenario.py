@@ -28,6 +28,7 @@ from ..actuators import MODE_FORCE, MODE_OFF, MODE_SEMI, N_CHANNELS, healthy
 from ..contact import creep_coefficients
 from ..dynamics import COEFFICIENT_NAMES, BogieModel
 from ..params import FIELDS, BogieParams, ConfigError, validate_value
+from .draws import uniform, uniform_array
 
 
 @dataclass(frozen=True)
@@ -161,15 +162,15 @@ def draw_scenario(
     fault_draw: tuple[float, int, float] | None = None
     for name, bounds in randomize.items():
         if name in FIELDS:
-            s.factors[name] = float(rng.uniform(*bounds))
+            s.factors[name] = uniform(rng, *bounds)
         elif name == "conicity":
-            s.conicity = float(rng.uniform(*bounds))
+            s.conicity = uniform(rng, *bounds)
         elif name == "actuator_gain":
-            s.actuator_gain = rng.uniform(*bounds, N_CHANNELS)
+            s.actuator_gain = uniform_array(rng, *bounds, N_CHANNELS)
         elif name in RANGES:
-            setattr(s, name, float(rng.uniform(*bounds)))
+            setattr(s, name, uniform(rng, *bounds))
         elif name in PROBABILITIES and fault_draw is None:
-            fault_draw = (float(rng.random()), int(rng.integers(max(1, len(active)))), float(rng.uniform(-1.0, 1.0)))
+            fault_draw = (float(rng.random()), int(rng.integers(max(1, len(active)))), uniform(rng, -1.0, 1.0))
     if fault_draw is not None and active:
         u, which, command = fault_draw
         p_fail = randomize.get("actuator_failure_probability", 0.0)
@@ -183,6 +184,8 @@ def draw_scenario(
 
 
 def _apply_options(s: Scenario, options: Mapping[str, Any], active: list[str]) -> None:
+    if not options:
+        return
     for name in RANGES:
         if name not in options:
             continue

@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from .draws import centred_normal
+
 G0 = 9.80665  # m/s^2
 DEG = math.pi / 180.0
 
@@ -165,7 +167,7 @@ def bias_deviations(sensors: dict[str, Any]) -> np.ndarray:
 def draw_biases(sensors: dict[str, Any], rng: np.random.Generator, deviations: np.ndarray | None = None) -> np.ndarray:
     """(N_SENSED,) one episode's biases, SI units: one normal draw per channel, in channel
     order (``deviations``: :func:`bias_deviations`, when the caller has them)."""
-    return rng.normal(0.0, bias_deviations(sensors) if deviations is None else deviations)
+    return centred_normal(rng, bias_deviations(sensors) if deviations is None else deviations)
 
 
 # ---- compiled: per-row generator, filter, noise ----------------------------------------------

@@ -68,6 +68,7 @@ from ..wheel_rail import DETAIL_NAMES, GUIDING, Y_L, Y_R, wheelset_details, whee
 from ..route import CANT_BASE_M, GRAVITY
 from ..track import ALIGNMENT_WHEELSET1, ALIGNMENT_WHEELSET2, CANT_FRAME, CURVATURE_FRAME, TrackInput, alignment_profile, alignment_profile_at_level, perfect_track
 from . import scenario as scenarios
+from .draws import uniform
 from .config import MAX_ACCEL, MAX_NUM_ENVS, bogie_params, make_config, max_steps_for
 from .routes import RouteLayout, build_layout
 from .sensors import N_SENSED, SENSOR_NAMES, bias_deviations, draw_biases, sense_row, sense_rows, sensor_table
@@ -150,6 +151,7 @@ def speed_kmh_from_observation(obs: np.ndarray, observation_type: str) -> np.nda
 
 Y1, Y2, YB = state_index("y1"), state_index("y2"), state_index("yb")
 PSI1, PSI2, PSIB = state_index("psi1"), state_index("psi2"), state_index("psib")
+_OFFSET_STATES, _YAW_STATES = np.array([Y1, Y2, YB]), np.array([PSI1, PSI2, PSIB])  # a reset's perturbation
 DYB, DPSIB = state_index("dyb"), state_index("dpsib")
 
 
@@ -818,14 +820,14 @@ class HuntingTask:
             size = self.config["large_perturbation"]
             offsets = rng.uniform(0.5, 1.0, 3) * size * rng.choice([-1.0, 1.0], 3)
             large = True
-        x[[Y1, Y2, YB]] += offsets
-        x[[PSI1, PSI2, PSIB]] += yaws
+        x[_OFFSET_STATES] += offsets
+        x[_YAW_STATES] += yaws
         return x, offsets, yaws, large
 
     def _draw_track_position(self, rng: np.random.Generator) -> float:
         """Where on the straight track's alignment profile a row starts (m); 0 on a perfect track."""
         alignment = self.track_input.alignment
-        return rng.uniform(0.0, alignment.length) if alignment.values.size else 0.0
+        return uniform(rng, 0.0, alignment.length) if alignment.values.size else 0.0
 
     def _clear_episode(self, rows: np.ndarray | int, start_kmh: np.ndarray | float, slots: list[Any]) -> None:
         """The rows' (or one row's) episode bookkeeping, flags and info at the start of an
@@ -938,7 +940,7 @@ class HuntingTask:
             if isinstance(forced, bool) or not isinstance(forced, (int, float)) or not math.isfinite(forced):
                 raise ConfigError(f"reset option {name!r} = {forced!r} must be a finite number")
             return float(forced)
-        return float(rng.uniform(*bounds)) if bounds else float(value)
+        return uniform(rng, *bounds) if bounds else float(value)
 
     def set_states(self, states: np.ndarray, rows: np.ndarray | slice = slice(None)) -> None:
         """Replace the bogie states of some rows (e.g. starts on a limit cycle) and refresh their
