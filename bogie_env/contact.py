@@ -85,13 +85,16 @@ def hertz_ellipse(normal_load: float, A: float, B: float, E: float, nu: float) -
             raise ValueError(f"hertz_ellipse: {name} = {value!r} must be finite and > 0")
     if not 0.0 <= nu < 0.5 + 1e-12:
         raise ValueError(f"hertz_ellipse: nu = {nu!r} must be in [0, 0.5]")
-    e_star = E / (2.0 * (1.0 - nu * nu))
-    small, large = (A, B) if A <= B else (B, A)
-    m = _eccentricity_squared(large / small)
+    a, b = _semi_axes(normal_load, A, B, E / (2.0 * (1.0 - nu * nu)), _eccentricity_squared(max(A, B) / min(A, B)))
+    return HertzContact(a=a, b=b, A=A, B=B, normal_load=normal_load)
+
+
+def _semi_axes(normal_load: float, A: float, B: float, e_star: float, m: float) -> tuple[float, float]:
+    """(a, b) of :func:`hertz_ellipse`, given ``E*`` and the eccentricity ``m`` of ``A/B``."""
+    small = A if A <= B else B
     semi_long = (3.0 * normal_load * _k_minus_e_over_m(m) / (2.0 * math.pi * e_star * small)) ** (1.0 / 3.0)
     semi_short = semi_long * math.sqrt(1.0 - m)
-    a, b = (semi_long, semi_short) if A <= B else (semi_short, semi_long)
-    return HertzContact(a=a, b=b, A=A, B=B, normal_load=normal_load)
+    return (semi_long, semi_short) if A <= B else (semi_short, semi_long)
 
 
 def wheel_rail_curvatures(params: BogieParams) -> tuple[float, float]:
@@ -156,17 +159,36 @@ def creep_coefficients(params: BogieParams) -> CreepCoefficients:
     """
     A, B = wheel_rail_curvatures(params)
     contact = hertz_ellipse(0.5 * params.Wpa, A, B, params.E, params.nu)
-    shear_modulus = params.E / (2.0 * (1.0 + params.nu))
-    c11, c22, c23, c33 = kalker_coefficients(contact.ratio, params.nu)
-    area = contact.a * contact.b
-    computed = {
-        "f11": area * shear_modulus * c22,  # Eq. (7)
-        "f12": area**1.5 * shear_modulus * c23,  # Eq. (8)
-        "f22": area**2 * shear_modulus * c33,  # Eq. (9)
-        "f33": area * shear_modulus * c11,  # Eq. (10)
-    }
+    computed = dict(zip(CREEP_NAMES, _creep_from_axes(contact.a, contact.b, params.E, params.nu)))
     values = {name: (getattr(params, name) if getattr(params, name) is not None else computed[name]) for name in computed}
     return CreepCoefficients(contact=contact, **values)
+
+
+CREEP_NAMES = ("f11", "f12", "f22", "f33")
+
+
+def _creep_from_axes(a: float, b: float, E: float, nu: float) -> tuple[float, float, float, float]:
+    """(f11, f12, f22, f33), Eqs. (7)-(10), on the contact ellipse with semi-axes a, b."""
+    shear_modulus = E / (2.0 * (1.0 + nu))
+    c11, c22, c23, c33 = kalker_coefficients(a / b, nu)
+    area = a * b
+    return (area * shear_modulus * c22,  # Eq. (7)
+            area**1.5 * shear_modulus * c23,  # Eq. (8)
+            area**2 * shear_modulus * c33,  # Eq. (9)
+            area * shear_modulus * c11)  # Eq. (10)  # fmt: skip
+
+
+def creep_rows(normal_loads: np.ndarray, params: BogieParams) -> np.ndarray:
+    """(n, 4): the computed (f11, f12, f22, f33) of ``params``' bogie under each of the wheel
+    loads ``normal_loads`` (N), bit for bit :func:`creep_coefficients` of each (without the
+    overrides set in ``params``): the ellipse's shape is solved once for all."""
+    A, B = wheel_rail_curvatures(params)
+    loads = np.asarray(normal_loads, dtype=float)
+    if loads.size:
+        hertz_ellipse(float(loads.min()), A, B, params.E, params.nu)  # the checks: positive, finite loads; A, B, E, nu
+        hertz_ellipse(float(loads.max()), A, B, params.E, params.nu)
+    e_star, m = params.E / (2.0 * (1.0 - params.nu * params.nu)), _eccentricity_squared(max(A, B) / min(A, B))
+    return np.array([_creep_from_axes(*_semi_axes(load, A, B, e_star, m), params.E, params.nu) for load in loads.tolist()]).reshape(-1, 4)
 
 
 # ---------------------------------------------------------------------------------

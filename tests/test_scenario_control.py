@@ -397,6 +397,42 @@ def test_a_resets_bogie_is_its_scenarios_model_bit_for_bit(randomize):
     assert scenarios.scenario_coefficients(base, scenarios.Scenario(), nominal) is nominal.coefficients
 
 
+@pytest.mark.parametrize("randomize", [V1_DRAWS, {"axle_load": [0.8, 1.2]}, {"creep_factor": [0.5, 1.0], "conicity": [0.02, 0.4]},
+                                       {**V1_DRAWS, "Kpz": [0.5, 2.0]}])  # fmt: skip
+def test_a_batch_of_scenarios_is_each_scenarios_model_bit_for_bit(randomize):
+    """The batched chain (v1's draws: all rows at once) against the documented chain by hand,
+    row by row, with some rows at exactly 1 (nothing changed) and without a conicity."""
+    cfg = make_config({"randomize": randomize}, variant="v1")
+    base = bogie_params(cfg)
+    nominal = BogieModel(base)
+    rng = np.random.default_rng(2)
+    drawn = [scenarios.draw_scenario(cfg["randomize"], {}, rng, ["frame_lateral"]) for _ in range(40)]
+    drawn[3] = scenarios.Scenario()
+    drawn[5].creep_factor = drawn[6].axle_load = 1.0
+    drawn[7].conicity = None
+    rows = scenarios.scenario_coefficient_rows(base, drawn, nominal)
+    assert rows.shape == (40, nominal.coefficients.size)
+    for s, row in zip(drawn, rows):
+        assert np.array_equal(row, _scenario_model_by_hand(base, s).coefficients)
+
+
+@pytest.mark.parametrize("field, value", [("primary_longitudinal_stiffness", 1e12), ("axle_load", -0.5), ("creep_factor", 1e40),
+                                          ("conicity", 7.0)])  # fmt: skip
+def test_a_batch_raises_the_row_by_row_error(field, value):
+    """An out-of-range value in one row of a batch raises the error the row alone raises."""
+    cfg = make_config(variant="v1")
+    base = bogie_params(cfg)
+    nominal = BogieModel(base)
+    rng = np.random.default_rng(3)
+    drawn = [scenarios.draw_scenario(cfg["randomize"], {}, rng, ["frame_lateral"]) for _ in range(5)]
+    setattr(drawn[2], field, value)
+    with pytest.raises(ConfigError) as alone:
+        scenarios.scenario_coefficients(base, drawn[2], nominal)
+    with pytest.raises(ConfigError) as batched:
+        scenarios.scenario_coefficient_rows(base, drawn, nominal)
+    assert str(batched.value) == str(alone.value)
+
+
 @pytest.mark.parametrize("variant", ["v1", "v1_route"])
 def test_many_rows_reset_at_once_as_each_alone(variant):
     config = {"randomize": {**V1_DRAWS, **ALWAYS_FAULTY["randomize"]}}

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..actuators import CHANNEL_NAMES, CH_C_MAX, CH_C_MIN, CH_MAX_FORCE, CH_MODE, H_GAIN, H_HELD_DAMPING, H_HELD_FORCE
 from ..actuators import MODE_FORCE, MODE_OFF, MODE_SEMI, N_CHANNELS, healthy
-from ..contact import creep_coefficients
+from ..contact import CREEP_NAMES, creep_coefficients, creep_rows
 from ..dynamics import COEFFICIENT_NAMES, BogieModel
 from ..params import FIELDS, BogieParams, ConfigError, validate_value
 from .draws import uniform, uniform_array
@@ -230,7 +230,6 @@ def _is_channel(value: Any) -> bool:
 
 #: Parameters the creep coefficients follow (``contact.creep_coefficients``).
 CREEP_INPUTS = frozenset(("Wpa", "r0", "Rwheel", "Rrail", "E", "nu", "f11", "f12", "f22", "f33"))
-CREEP_NAMES = ("f11", "f12", "f22", "f33")
 _COEFFICIENT_INDEX = {name: k for k, name in enumerate(COEFFICIENT_NAMES)}
 
 
@@ -289,6 +288,55 @@ def scenario_coefficients(base: BogieParams, s: Scenario, nominal: BogieModel) -
             p[_COEFFICIENT_INDEX[name]] = getattr(creep, name)
     p.setflags(write=False)  # as a model's (and one compiled signature for the equilibrium)
     return p
+
+
+_SCALED_BY = (("primary_longitudinal_stiffness", ("Kpx",)), ("primary_lateral_stiffness", ("Kpy",)),
+              ("axle_load", ("Wpa",)), ("damper_factor", ("Csx", "Csy")))  # fmt: skip
+
+
+def scenario_coefficient_rows(base: BogieParams, drawn: list[Scenario], nominal: BogieModel) -> np.ndarray:
+    """(n, N_COEFFICIENTS): :func:`scenario_coefficients` of each scenario, bit for bit. When no
+    scenario has factors on bogie parameters (v1's draws) and the bogie computes its own creep
+    coefficients, the chain runs on all rows at once with the Hertz ellipse's shape solved once
+    (a reset's cost); otherwise row by row. A value out of its parameter's range raises the
+    same error as there."""
+    n = len(drawn)
+    if nominal.params is not base or any(getattr(base, k) is not None for k in CREEP_NAMES) or any(s.factors for s in drawn):
+        return np.array([scenario_coefficients(base, s, nominal) for s in drawn]).reshape(n, -1)
+    out = np.repeat(nominal.coefficients[None, :], n, axis=0)
+    wpa = np.full(n, base.Wpa)
+    for quantity, keys in _SCALED_BY:
+        factor = np.array([getattr(s, quantity) for s in drawn], dtype=float)
+        for value in factor[~(factor >= 0.0) | ~np.isfinite(factor)].tolist():
+            base.scaled_values(**{keys[0]: value})  # raises: the factor, its parameter and what is allowed
+        for key in keys:
+            values = _checked(key, getattr(base, key) * factor)
+            if key == "Wpa":
+                wpa = values
+            if key in _COEFFICIENT_INDEX:
+                out[:, _COEFFICIENT_INDEX[key]] = values
+    conicity = [j for j, s in enumerate(drawn) if s.conicity is not None]
+    if conicity:
+        out[conicity, _COEFFICIENT_INDEX["lam"]] = _checked("lam", np.array([drawn[j].conicity for j in conicity], dtype=float))
+    creep_factor = np.array([s.creep_factor for s in drawn], dtype=float)
+    rows = np.nonzero((wpa != base.Wpa) | (creep_factor != 1.0))[0]
+    if rows.size:
+        creep = creep_rows(0.5 * wpa[rows], base)
+        scaled = creep_factor[rows] != 1.0
+        creep[scaled] *= creep_factor[rows][scaled, None]
+        for k, name in enumerate(CREEP_NAMES):
+            _checked(name, creep[scaled, k])
+            out[rows, _COEFFICIENT_INDEX[name]] = creep[:, k]
+    return out
+
+
+def _checked(name: str, values: np.ndarray) -> np.ndarray:
+    """``values`` if parameter ``name`` may take each, else :func:`validate_value`'s error for the first that may not."""
+    spec = FIELDS[name]
+    above = values >= spec.low if spec.low_inclusive else values > spec.low
+    for value in values[~(above & (values <= spec.high) & np.isfinite(values))].tolist():
+        validate_value(name, value)  # raises, or returns an allowed infinity
+    return values
 
 
 def scenario_health(s: Scenario, channels: np.ndarray) -> np.ndarray:

@@ -699,7 +699,8 @@ class HuntingTask:
         this order from its RNG: its speeds (and route slot), its scenario, its start state, its
         place on the track and its sensors' biases and noise seed. Every row is drawn before any
         is set, so a reset that raises (a bad option for one row) changes no row's episode (the
-        rows' random streams have moved on); a row given twice keeps its last draw (its first
+        rows' random streams have moved on); the scenarios' bogies are then computed for all
+        rows at once (:func:`scenario.scenario_coefficient_rows`). A row given twice keeps its last draw (its first
         observation's noise is drawn once per mention). The rest (equilibria aside) is set for
         all rows at once."""
         options = self._checked_reset_options(options)
@@ -708,7 +709,6 @@ class HuntingTask:
         if n == 0:
             return
         x0 = np.empty((n, N_STATES))
-        coefficients = np.empty((n, N_COEFFICIENTS))
         draws = np.empty((n, 4))  # start_kmh, end_kmh, accel, distance
         biases, noise_seeds = np.empty((n, N_SENSED)), np.empty(n, dtype=np.uint64)
         slots, new_scenarios, episode_draws = [], [], []
@@ -718,8 +718,7 @@ class HuntingTask:
             start, end, accel, slot = self._draw_speeds(rng, options)
             scenario = scenarios.draw_scenario(self.config["randomize"], options, rng, active)
             scenario.factors.update(options.get("params", {}) or {})
-            coefficients[j] = p = scenarios.scenario_coefficients(self.base_params, scenario, self.model)
-            x0[j], offsets, yaws, large = self._draw_start_state(p, start, rng)
+            offsets, yaws, large = self._draw_perturbation(rng)
             distance = slot.start_m if self.on_routes else self._draw_track_position(rng)
             draws[j] = start, end, accel, distance
             episode_draws.append((float(start), float(end), float(accel), float(distance), slot, offsets, yaws, large))
@@ -728,6 +727,10 @@ class HuntingTask:
                 noise_seeds[j] = rng.integers(1, 2**63)
             slots.append(slot)
             new_scenarios.append(scenario)
+        coefficients = scenarios.scenario_coefficient_rows(self.base_params, new_scenarios, self.model)
+        coefficients.setflags(write=False)  # read-only as a model's vector: one compiled signature for the equilibrium
+        for j, (start, *_, offsets, yaws, _large) in enumerate(episode_draws):
+            x0[j] = self._start_state(coefficients[j], start, offsets, yaws)
         last = self._last_of_each_row(rows)
         members = last.tolist()
         for j in members:
@@ -805,13 +808,10 @@ class HuntingTask:
             )
         return start, end, accel, slot
 
-    def _draw_start_state(self, coefficients: np.ndarray, start_kmh: float,
-                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:  # fmt: skip
-        """The equilibrium at the start speed plus the initial perturbation: small normal offsets
-        and yaws, or (with ``large_perturbation_probability``) offsets of 0.5-1 x
-        ``large_perturbation`` with random signs. Returns the state, the offsets, the yaws and
-        whether the large perturbation was drawn."""
-        x = equilibrium_state(coefficients, start_kmh / KMH)
+    def _draw_perturbation(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The initial perturbation: small normal offsets and yaws, or (with
+        ``large_perturbation_probability``) offsets of 0.5-1 x ``large_perturbation`` with
+        random signs. Returns the offsets, the yaws and whether the large perturbation was drawn."""
         sigma = self.config["initial_perturbation"]
         offsets = rng.normal(0.0, sigma, 3)
         yaws = rng.normal(0.0, sigma / (2 * self.base_params.L1), 3)
@@ -820,9 +820,15 @@ class HuntingTask:
             size = self.config["large_perturbation"]
             offsets = rng.uniform(0.5, 1.0, 3) * size * rng.choice([-1.0, 1.0], 3)
             large = True
+        return offsets, yaws, large
+
+    @staticmethod
+    def _start_state(coefficients: np.ndarray, start_kmh: float, offsets: np.ndarray, yaws: np.ndarray) -> np.ndarray:
+        """The equilibrium at the start speed plus the perturbation."""
+        x = equilibrium_state(coefficients, start_kmh / KMH)
         x[_OFFSET_STATES] += offsets
         x[_YAW_STATES] += yaws
-        return x, offsets, yaws, large
+        return x
 
     def _draw_track_position(self, rng: np.random.Generator) -> float:
         """Where on the straight track's alignment profile a row starts (m); 0 on a perfect track."""
