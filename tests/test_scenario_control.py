@@ -416,6 +416,13 @@ def test_a_batch_of_scenarios_is_each_scenarios_model_bit_for_bit(randomize):
         assert np.array_equal(row, _scenario_model_by_hand(base, s).coefficients)
 
 
+def test_every_scenario_field_is_batched_or_health_only():
+    """A new Scenario field that changes the bogie must be applied by scenario_params and by the
+    batched scenario_coefficient_rows (docs/extending.md, "Add a randomised quantity")."""
+    names = {f.name for f in dataclasses.fields(scenarios.Scenario)}
+    assert names == set(scenarios.BATCHED_FIELDS) | set(scenarios.HEALTH_FIELDS)
+
+
 @pytest.mark.parametrize("field, value", [("primary_longitudinal_stiffness", 1e12), ("axle_load", -0.5), ("creep_factor", 1e40),
                                           ("conicity", 7.0)])  # fmt: skip
 def test_a_batch_raises_the_row_by_row_error(field, value):
@@ -424,7 +431,7 @@ def test_a_batch_raises_the_row_by_row_error(field, value):
     base = bogie_params(cfg)
     nominal = BogieModel(base)
     rng = np.random.default_rng(3)
-    drawn = [scenarios.draw_scenario(cfg["randomize"], {}, rng, ["frame_lateral"]) for _ in range(5)]
+    drawn = [scenarios.draw_scenario(cfg["randomize"], {}, rng, ["frame_lateral"]) for _ in range(scenarios.BATCH_MIN_ROWS)]
     setattr(drawn[2], field, value)
     with pytest.raises(ConfigError) as alone:
         scenarios.scenario_coefficients(base, drawn[2], nominal)

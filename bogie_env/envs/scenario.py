@@ -290,18 +290,25 @@ def scenario_coefficients(base: BogieParams, s: Scenario, nominal: BogieModel) -
     return p
 
 
+BATCH_MIN_ROWS = 8  # below, the arrays' fixed cost exceeds the rows' (bench_v1.py --cpu --resets)
 _SCALED_BY = (("primary_longitudinal_stiffness", ("Kpx",)), ("primary_lateral_stiffness", ("Kpy",)),
               ("axle_load", ("Wpa",)), ("damper_factor", ("Csx", "Csy")))  # fmt: skip
+#: The Scenario fields that scenario_coefficient_rows applies (with "factors", which sends a
+#: batch row by row) and those that change only the actuators' health: a new field that changes
+#: the bogie must be applied there too (tests/test_scenario_control.py checks the lists).
+BATCHED_FIELDS = ("factors", "conicity", "creep_factor", *(quantity for quantity, _ in _SCALED_BY))
+HEALTH_FIELDS = ("actuator_gain", "failed_actuator", "stuck_actuator", "stuck_command")
 
 
 def scenario_coefficient_rows(base: BogieParams, drawn: list[Scenario], nominal: BogieModel) -> np.ndarray:
     """(n, N_COEFFICIENTS): :func:`scenario_coefficients` of each scenario, bit for bit. When no
-    scenario has factors on bogie parameters (v1's draws) and the bogie computes its own creep
-    coefficients, the chain runs on all rows at once with the Hertz ellipse's shape solved once
-    (a reset's cost); otherwise row by row. A value out of its parameter's range raises the
+    scenario has factors on bogie parameters (v1's draws), the bogie computes its own creep
+    coefficients and there are at least :data:`BATCH_MIN_ROWS` rows, the chain runs on all rows
+    at once with the Hertz ellipse's shape solved once (a vector env's reset); otherwise row by
+    row (cheaper for the few rows of an autoreset). A value out of its parameter's range raises the
     same error as there."""
     n = len(drawn)
-    if nominal.params is not base or any(getattr(base, k) is not None for k in CREEP_NAMES) or any(s.factors for s in drawn):
+    if n < BATCH_MIN_ROWS or nominal.params is not base or any(getattr(base, k) is not None for k in CREEP_NAMES) or any(s.factors for s in drawn):
         return np.array([scenario_coefficients(base, s, nominal) for s in drawn]).reshape(n, -1)
     out = np.repeat(nominal.coefficients[None, :], n, axis=0)
     wpa = np.full(n, base.Wpa)
