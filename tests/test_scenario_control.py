@@ -423,7 +423,7 @@ def test_every_scenario_field_is_batched_or_health_only():
     assert names == set(scenarios.BATCHED_FIELDS) | set(scenarios.HEALTH_FIELDS)
 
 
-@pytest.mark.parametrize("field, value", [("primary_longitudinal_stiffness", 1e12), ("axle_load", -0.5), ("creep_factor", 1e40),
+@pytest.mark.parametrize("field, value", [("primary_longitudinal_stiffness", 1e12), ("axle_load", -0.5), ("damper_factor", math.nan), ("creep_factor", 1e40),
                                           ("conicity", 7.0)])  # fmt: skip
 def test_a_batch_raises_the_row_by_row_error(field, value):
     """An out-of-range value in one row of a batch raises the error the row alone raises."""

@@ -314,8 +314,9 @@ def scenario_coefficient_rows(base: BogieParams, drawn: list[Scenario], nominal:
     wpa = np.full(n, base.Wpa)
     for quantity, keys in _SCALED_BY:
         factor = np.array([getattr(s, quantity) for s in drawn], dtype=float)
-        for value in factor[~(factor >= 0.0) | ~np.isfinite(factor)].tolist():
-            base.scaled_values(**{keys[0]: value})  # raises: the factor, its parameter and what is allowed
+        if not (0.0 <= factor.min() and factor.max() < math.inf):  # NaN fails the comparisons too
+            for value in factor[~(factor >= 0.0) | ~np.isfinite(factor)].tolist():
+                base.scaled_values(**{keys[0]: value})  # raises: the factor, its parameter and what is allowed
         for key in keys:
             values = _checked(key, getattr(base, key) * factor)
             if key == "Wpa":
@@ -340,6 +341,9 @@ def scenario_coefficient_rows(base: BogieParams, drawn: list[Scenario], nominal:
 def _checked(name: str, values: np.ndarray) -> np.ndarray:
     """``values`` if parameter ``name`` may take each, else :func:`validate_value`'s error for the first that may not."""
     spec = FIELDS[name]
+    low, high = values.min(initial=math.inf), values.max(initial=-math.inf)
+    if high <= spec.high and (low >= spec.low if spec.low_inclusive else low > spec.low) and math.isfinite(high):
+        return values  # all in range (NaN fails the comparisons)
     above = values >= spec.low if spec.low_inclusive else values > spec.low
     for value in values[~(above & (values <= spec.high) & np.isfinite(values))].tolist():
         validate_value(name, value)  # raises, or returns an allowed infinity
