@@ -1,8 +1,8 @@
 """numpy ``Generator`` draws at a reset's call cost, bit for bit.
 
 A reset draws a dozen scalars per row from the row's own ``Generator``. Its ``uniform`` and
-``normal`` spend most of their time parsing and broadcasting their arguments (about 1.7 and
-19 µs a call against 0.5 µs for ``random``). numpy computes ``uniform(low, high)`` as
+``normal`` spend most of their time parsing and broadcasting their arguments, far more than
+``random`` itself takes (``docs/performance.md``, "Cheaper draws"). numpy computes ``uniform(low, high)`` as
 ``low + (high - low) * random()`` and ``normal(0, scale)`` as ``0 + scale * standard_normal()``;
 the functions here do the same arithmetic on the same stream, so the draws and the stream's
 state after them are identical (``tests/test_draws.py`` checks both against numpy). Arguments
