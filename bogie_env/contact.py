@@ -178,6 +178,14 @@ def _creep_from_axes(a: float, b: float, E: float, nu: float) -> tuple[float, fl
             area * shear_modulus * c11)  # Eq. (10)  # fmt: skip
 
 
+def computed_creep(normal_load: float, params: BogieParams) -> tuple[float, float, float, float]:
+    """The computed (f11, f12, f22, f33) of ``params``' bogie under one wheel load (N), without
+    the overrides set in ``params``: :func:`creep_rows` of one load."""
+    A, B = wheel_rail_curvatures(params)
+    contact = hertz_ellipse(normal_load, A, B, params.E, params.nu)
+    return _creep_from_axes(contact.a, contact.b, params.E, params.nu)
+
+
 def creep_rows(normal_loads: np.ndarray, params: BogieParams) -> np.ndarray:
     """(n, 4): the computed (f11, f12, f22, f33) of ``params``' bogie under each of the wheel
     loads ``normal_loads`` (N), bit for bit :func:`creep_coefficients` of each (without the

@@ -412,8 +412,10 @@ def test_a_batch_of_scenarios_is_each_scenarios_model_bit_for_bit(randomize):
     drawn[7].conicity = None
     rows = scenarios.scenario_coefficient_rows(base, drawn, nominal)
     assert rows.shape == (40, nominal.coefficients.size)
-    for s, row in zip(drawn, rows):
-        assert np.array_equal(row, _scenario_model_by_hand(base, s).coefficients)
+    few = np.concatenate([scenarios.scenario_coefficient_rows(base, drawn[k : k + 3], nominal) for k in range(0, 40, 3)])
+    for s, row, row_of_few in zip(drawn, rows, few):  # an autoreset's few rows take the scalar chain
+        expected = _scenario_model_by_hand(base, s).coefficients
+        assert np.array_equal(row, expected) and np.array_equal(row_of_few, expected)
 
 
 def test_every_scenario_field_is_batched_or_health_only():
@@ -425,13 +427,15 @@ def test_every_scenario_field_is_batched_or_health_only():
 
 @pytest.mark.parametrize("field, value", [("primary_longitudinal_stiffness", 1e12), ("axle_load", -0.5), ("damper_factor", math.nan), ("creep_factor", 1e40),
                                           ("conicity", 7.0)])  # fmt: skip
-def test_a_batch_raises_the_row_by_row_error(field, value):
-    """An out-of-range value in one row of a batch raises the error the row alone raises."""
+@pytest.mark.parametrize("batch", [3, scenarios.BATCH_MIN_ROWS])
+def test_a_batch_raises_the_row_by_row_error(field, value, batch):
+    """An out-of-range value in one row of a batch (of a few rows, or of many) raises the error
+    the row alone raises."""
     cfg = make_config(variant="v1")
     base = bogie_params(cfg)
     nominal = BogieModel(base)
     rng = np.random.default_rng(3)
-    drawn = [scenarios.draw_scenario(cfg["randomize"], {}, rng, ["frame_lateral"]) for _ in range(scenarios.BATCH_MIN_ROWS)]
+    drawn = [scenarios.draw_scenario(cfg["randomize"], {}, rng, ["frame_lateral"]) for _ in range(batch)]
     setattr(drawn[2], field, value)
     with pytest.raises(ConfigError) as alone:
         scenarios.scenario_coefficients(base, drawn[2], nominal)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..actuators import CHANNEL_NAMES, CH_C_MAX, CH_C_MIN, CH_MAX_FORCE, CH_MODE, H_GAIN, H_HELD_DAMPING, H_HELD_FORCE
 from ..actuators import MODE_FORCE, MODE_OFF, MODE_SEMI, N_CHANNELS, healthy
-from ..contact import CREEP_NAMES, creep_coefficients, creep_rows
+from ..contact import CREEP_NAMES, computed_creep, creep_coefficients, creep_rows
 from ..dynamics import COEFFICIENT_NAMES, BogieModel
 from ..params import FIELDS, BogieParams, ConfigError, validate_value
 from .draws import uniform, uniform_array
@@ -308,8 +308,10 @@ def scenario_coefficient_rows(base: BogieParams, drawn: list[Scenario], nominal:
     row (cheaper for the few rows of an autoreset). A value out of its parameter's range raises the
     same error as there."""
     n = len(drawn)
-    if n < BATCH_MIN_ROWS or nominal.params is not base or any(getattr(base, k) is not None for k in CREEP_NAMES) or any(s.factors for s in drawn):
+    if nominal.params is not base or any(getattr(base, k) is not None for k in CREEP_NAMES) or any(s.factors for s in drawn):
         return np.array([scenario_coefficients(base, s, nominal) for s in drawn]).reshape(n, -1)
+    if n < BATCH_MIN_ROWS:
+        return np.array([_row_coefficients(base, s, nominal) for s in drawn]).reshape(n, -1)
     out = np.repeat(nominal.coefficients[None, :], n, axis=0)
     wpa = np.full(n, base.Wpa)
     for quantity, keys in _SCALED_BY:
@@ -335,6 +337,33 @@ def scenario_coefficient_rows(base: BogieParams, drawn: list[Scenario], nominal:
         for k, name in enumerate(CREEP_NAMES):
             _checked(name, creep[scaled, k])
             out[rows, _COEFFICIENT_INDEX[name]] = creep[:, k]
+    return out
+
+
+def _row_coefficients(base: BogieParams, s: Scenario, nominal: BogieModel) -> np.ndarray:
+    """One row of the batched chain in floats (the few rows of an autoreset), under the same
+    conditions: :func:`scenario_coefficients` bit for bit, without building parameter sets."""
+    out = nominal.coefficients.copy()
+    wpa = base.Wpa
+    for quantity, keys in _SCALED_BY:
+        factor = getattr(s, quantity)
+        if factor == 1.0:
+            continue
+        if not 0.0 <= factor < math.inf:  # NaN fails the comparisons too
+            base.scaled_values(**{keys[0]: factor})  # raises: the factor, its parameter and what is allowed
+        for key in keys:
+            value = validate_value(key, getattr(base, key) * factor)
+            if key == "Wpa":
+                wpa = value
+            if key in _COEFFICIENT_INDEX:
+                out[_COEFFICIENT_INDEX[key]] = value
+    if s.conicity is not None:
+        out[_COEFFICIENT_INDEX["lam"]] = validate_value("lam", s.conicity)
+    if wpa != base.Wpa or s.creep_factor != 1.0:
+        for name, value in zip(CREEP_NAMES, computed_creep(0.5 * wpa, base)):
+            if s.creep_factor != 1.0:
+                value = validate_value(name, value * s.creep_factor)
+            out[_COEFFICIENT_INDEX[name]] = value
     return out
 
 
