@@ -5,6 +5,7 @@ conicity in the v1 loop, and with one limit of the loop relaxed at a time (docs/
     python studies/headroom.py --full --world v1        # the protocol's 10 seeds, the v1 loop only
     python studies/headroom.py --policy robust_steering # any controller in the same worlds
     python studies/headroom.py --full --world v1 --weights 1,3,10 --rate-weights 10,30   # the reference's weights
+    python studies/headroom.py --full --world v1 --policy privileged_mpc   # the reference with hard limits (MPC)
 
 Worlds (each relaxes one thing of the v1 loop; the protocol is unchanged):
 
@@ -31,11 +32,16 @@ from typing import Any
 import numpy as np
 
 from bogie_agents.evaluation import stability_protocol as sp
+from bogie_agents.controllers.mpc import MPCReference
 from bogie_agents.controllers.privileged import PrivilegedController
 from bogie_env.actuators import CHANNEL_NAMES
 from bogie_env.envs.config import make_config
 from bogie_env.envs.scenario import Scenario
 from bogie_env.envs.sensors import SENSOR_NAMES
+
+
+#: the privileged references, whose weights --weights and --rate-weights set
+REFERENCES = {"privileged": PrivilegedController, "privileged_mpc": MPCReference}
 
 
 def worlds(base: dict) -> dict[str, dict[str, Any]]:
@@ -66,8 +72,8 @@ def run(policy: str, world: dict, conicities: list[float], full: bool, r: float 
     cols = tuple("nominal" if np.isclose(c, 0.025) else f"conicity:{c:g}" for c in conicities)
     settings = sp.Settings(columns=cols, progress=False) if full else sp.screening_settings(columns=cols, progress=False)
     source: Any = policy
-    if policy == "privileged":
-        source = lambda cfg: PrivilegedController(cfg, r=r, rate_weight=rate_weight)  # noqa: E731
+    if policy in REFERENCES:
+        source = lambda cfg: REFERENCES[policy](cfg, r=r, rate_weight=rate_weight)  # noqa: E731
     res = sp.evaluate_policy_v2(source, env, settings, parts=("critical",), label=policy)
     return {k: v["kmh"] for k, v in res["by_conicity"].items()}
 
@@ -83,8 +89,8 @@ def main() -> None:
     parser.add_argument("--world", action="append", help="world names (default: all)")
     parser.add_argument("--conicity", default="0.05,0.1,0.2,0.3")
     parser.add_argument("--full", action="store_true", help="the protocol's 10 seeds (default: screening, 3 seeds)")
-    parser.add_argument("--weights", default="scheduled", help="the reference's command weights r, comma-separated "
-                        "(default: scheduled on the true conicity, privileged.WEIGHTS_BY_CONICITY)")
+    parser.add_argument("--weights", default="scheduled", help="a reference's command weights r, comma-separated "
+                        "(default: scheduled on the true conicity, its weights_by_conicity)")
     parser.add_argument("--rate-weights", default="scheduled", help="its force-rate weights, comma-separated (default: scheduled)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
@@ -105,7 +111,7 @@ def main() -> None:
                 rows.append(row)
                 if not args.json:
                     cells = " ".join(f"{k}:{v:.1f}" for k, v in values.items())
-                    weights = f" r={r} rate_weight={q}" if args.policy == "privileged" else ""
+                    weights = f" r={r} rate_weight={q}" if args.policy in REFERENCES else ""
                     print(f"{args.policy}{weights} {name:16s} {cells} ({row['seconds']} s)", flush=True)
     if args.policy == "privileged":
         reference = PrivilegedController(make_config(variant="v1"), r=_weights(args.weights)[0],

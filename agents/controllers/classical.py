@@ -5,7 +5,8 @@ residual policy's ``baseline`` (:mod:`bogie_agents.controllers.residual`) accept
 - ``robust_damping``: :mod:`bogie_agents.controllers.robust`;
 - ``robust_steering``: ``robust_damping`` plus the curving assist of :mod:`bogie_agents.controllers.curving_assist`;
 - ``adaptive_lqg``, ``adaptive_lqg_rate``: :mod:`bogie_agents.controllers.adaptive` (told no conicity: estimates it online);
-- ``privileged``: :mod:`bogie_agents.controllers.privileged` (the reference told the true scenario; not a baseline).
+- ``privileged``: :mod:`bogie_agents.controllers.privileged` (the reference told the true scenario; not a baseline);
+- ``privileged_mpc``: :mod:`bogie_agents.controllers.mpc` (the same with hard force and rate limits; not a baseline).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 from .adaptive import AdaptiveLQGController, AdaptiveRateLQGController
 from .curving_assist import SteeringController
 from .lqr import LQGController, LQRController, PassiveController, RateAwareLQGController, SkyhookController
+from .mpc import MPCReference
 from .privileged import PrivilegedController
 from .robust import RobustDampingController
 
@@ -21,4 +23,4 @@ CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": 
              "lqg_rate": RateAwareLQGController, "adaptive_lqg": AdaptiveLQGController,
              "adaptive_lqg_rate": AdaptiveRateLQGController,
              "robust_damping": RobustDampingController, "robust_steering": SteeringController,
-             "privileged": PrivilegedController}
+             "privileged": PrivilegedController, "privileged_mpc": MPCReference}

@@ -163,14 +163,10 @@ def lqr_gain_cross(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray, s
     return np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a + s.T)
 
 
-def add_rate_cost(q: np.ndarray, r: np.ndarray, n_x: int, delays, bandwidth: np.ndarray, held_force: np.ndarray,
-                  rate_limit: np.ndarray, rate_weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(Q, S, R)`` of a sampled loop plant's LQR cost (:func:`bogie_env.sampled_plant.sampled_loop_plant`
-    order: ``n_x`` bogie states, one force per channel, then the command registers) plus
-    ``rate_weight`` times each channel's squared force rate relative to its limit. The rate is
-    ``w_j (held_force_j u_held - F_j)``, ``u_held`` the channel's oldest register (or, without
-    delay, its command: a cross term). A channel without a rate limit (inf) adds nothing."""
-    n, n_act = q.shape[0], r.shape[0]
+def force_rate_rows(n: int, n_x: int, delays, bandwidth: np.ndarray, held_force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(M_z, M_u)``: each channel's force rate (N/s) at a sample, ``M_z z + M_u u``, on a sampled
+    loop plant of ``n`` states (:func:`add_rate_cost`'s order): ``w_j (held_force_j u_held - F_j)``."""
+    n_act = len(delays)
     m_z, m_u = np.zeros((n_act, n)), np.zeros((n_act, n_act))
     pos = n_x + n_act
     for j, d in enumerate(delays):
@@ -180,6 +176,17 @@ def add_rate_cost(q: np.ndarray, r: np.ndarray, n_x: int, delays, bandwidth: np.
         else:
             m_z[j, pos + d - 1] = bandwidth[j] * held_force[j]
             pos += d
+    return m_z, m_u
+
+
+def add_rate_cost(q: np.ndarray, r: np.ndarray, n_x: int, delays, bandwidth: np.ndarray, held_force: np.ndarray,
+                  rate_limit: np.ndarray, rate_weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(Q, S, R)`` of a sampled loop plant's LQR cost (:func:`bogie_env.sampled_plant.sampled_loop_plant`
+    order: ``n_x`` bogie states, one force per channel, then the command registers) plus
+    ``rate_weight`` times each channel's squared force rate relative to its limit. The rate is
+    ``w_j (held_force_j u_held - F_j)``, ``u_held`` the channel's oldest register (or, without
+    delay, its command: a cross term). A channel without a rate limit (inf) adds nothing."""
+    m_z, m_u = force_rate_rows(q.shape[0], n_x, delays, bandwidth, held_force)
     finite = np.isfinite(rate_limit)
     weight = np.diag(np.where(finite, rate_weight / np.where(finite, rate_limit, 1.0) ** 2, 0.0))
     return q + m_z.T @ weight @ m_z, m_z.T @ weight @ m_u, r + m_u.T @ weight @ m_u

@@ -52,9 +52,9 @@ from .lqr import DesignPoint, LQRController, add_rate_cost, lateral_model, lqr_g
 WEIGHTS_BY_CONICITY: tuple[tuple[float, tuple[float, float]], ...] = ((0.15, (1.0, 30.0)), (math.inf, (10.0, 10.0)))
 
 
-def scheduled_weights(conicity: float) -> tuple[float, float]:
-    """``(r, rate_weight)`` for the true ``conicity`` (:data:`WEIGHTS_BY_CONICITY`)."""
-    return next(w for bound, w in WEIGHTS_BY_CONICITY if conicity < bound)
+def scheduled_weights(conicity: float, schedule: tuple = WEIGHTS_BY_CONICITY) -> tuple[float, float]:
+    """``(r, rate_weight)`` for the true ``conicity`` (``schedule``: :data:`WEIGHTS_BY_CONICITY`)."""
+    return next(w for bound, w in schedule if conicity < bound)
 
 
 class PrivilegedController(LQRController):
@@ -66,6 +66,8 @@ class PrivilegedController(LQRController):
     #: the protocol tells a privileged controller the true scenario of its rows (``tell``)
     privileged = True
     knows = "true scenario"  # what the results table says it is told
+    #: ``(r, rate_weight)`` by true conicity when not given
+    weights_by_conicity = WEIGHTS_BY_CONICITY
 
     def __init__(self, env_config: dict, r: float | None = None, rate_weight: float | None = None,
                  step_kmh: float = 10.0, scenario: Scenario | None = None, loop_config: Mapping[str, Any] | None = None,
@@ -73,7 +75,7 @@ class PrivilegedController(LQRController):
         self.scenario = scenario if scenario is not None else Scenario()
         self.weights_given = (r, rate_weight)  # None: scheduled on the true conicity
         lam = self.scenario.conicity if self.scenario.conicity is not None else bogie_params(env_config).lam
-        scheduled = scheduled_weights(lam)
+        scheduled = scheduled_weights(lam, self.weights_by_conicity)
         r = scheduled[0] if r is None else r
         rate_weight = scheduled[1] if rate_weight is None else rate_weight
         for field, value in (("r", r), ("rate_weight", rate_weight)):
@@ -96,8 +98,8 @@ class PrivilegedController(LQRController):
     def tell(self, scenario: Scenario, loop_config: Mapping[str, Any]) -> "PrivilegedController":
         """A controller designed for ``scenario`` in the loop of ``loop_config`` (the task's config:
         its command delays), with this one's given weights (or those scheduled on the scenario's conicity)."""
-        return PrivilegedController(self.config, *self.weights_given, float(self.speeds_kmh[1] - self.speeds_kmh[0])
-                                    if len(self.speeds_kmh) > 1 else 10.0, scenario, loop_config, self._v_range)  # fmt: skip
+        return type(self)(self.config, *self.weights_given, float(self.speeds_kmh[1] - self.speeds_kmh[0])
+                          if len(self.speeds_kmh) > 1 else 10.0, scenario, loop_config, self._v_range)  # fmt: skip
 
     @property
     def channel_gain(self) -> np.ndarray:
@@ -113,7 +115,9 @@ class PrivilegedController(LQRController):
         a, b = lateral_model(self.model, self.lin, speed, self.active, self.bandwidth, self.max_force)
         return a, b * self.channel_gain[None, :]
 
-    def _design(self, speed: float) -> DesignPoint:
+    def loop_problem(self, speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, B, Q, S, R)`` at ``speed`` (m/s): the sampled loop plant and the design's cost
+        ``z'Qz + 2 z'S u + u'Ru`` with the soft force-rate term."""
         a_c, b_c = self.continuous_model(speed)
         n_x = a_c.shape[0] - self.n_act
         a, b, _, _, _ = sampled_loop_plant(a_c, b_c, np.zeros((0, a_c.shape[0])), self.dt, self.delays, (), np.zeros(0))
@@ -123,6 +127,10 @@ class PrivilegedController(LQRController):
         q[: q_xf.shape[0], : q_xf.shape[0]] = q_xf
         q, s, r = add_rate_cost(q, r, n_x, self.delays, self.bandwidth, self.channel_gain * self.max_force,
                                 self.rate_limit, self.rate_weight)  # fmt: skip
+        return a, b, q, s, r
+
+    def _design(self, speed: float) -> DesignPoint:
+        a, b, q, s, r = self.loop_problem(speed)
         return DesignPoint(speed, lqr_gain_cross(a, b, q, r, s), a, b)
 
     # ---- runtime ------------------------------------------------------------------------------
