@@ -319,12 +319,7 @@ def scenario_coefficient_rows(base: BogieParams, drawn: list[Scenario], nominal:
         if not (0.0 <= factor.min() and factor.max() < math.inf):  # NaN fails the comparisons too
             for value in factor[~(factor >= 0.0) | ~np.isfinite(factor)].tolist():
                 base.scaled_values(**{keys[0]: value})  # raises: the factor, its parameter and what is allowed
-        for key in keys:
-            values = _checked(key, getattr(base, key) * factor)
-            if key == "Wpa":
-                wpa = values
-            if key in _COEFFICIENT_INDEX:
-                out[:, _COEFFICIENT_INDEX[key]] = values
+        wpa = _scale_into(out, base, keys, factor, _checked, wpa)
     conicity = [j for j, s in enumerate(drawn) if s.conicity is not None]
     if conicity:
         out[conicity, _COEFFICIENT_INDEX["lam"]] = _checked("lam", np.array([drawn[j].conicity for j in conicity], dtype=float))
@@ -340,6 +335,18 @@ def scenario_coefficient_rows(base: BogieParams, drawn: list[Scenario], nominal:
     return out
 
 
+def _scale_into(out: np.ndarray, base: BogieParams, keys: tuple[str, ...], factor, check, wpa):
+    """Write ``base``'s parameters ``keys`` times ``factor`` (checked by ``check(name, values)``)
+    into the coefficient vector(s) ``out``; returns the axle load, scaled or ``wpa`` as given."""
+    for key in keys:
+        values = check(key, getattr(base, key) * factor)
+        if key == "Wpa":
+            wpa = values
+        if key in _COEFFICIENT_INDEX:
+            out[..., _COEFFICIENT_INDEX[key]] = values
+    return wpa
+
+
 def _row_coefficients(base: BogieParams, s: Scenario, nominal: BogieModel) -> np.ndarray:
     """One row of the batched chain in floats (the few rows of an autoreset), under the same
     conditions: :func:`scenario_coefficients` bit for bit, without building parameter sets."""
@@ -351,12 +358,7 @@ def _row_coefficients(base: BogieParams, s: Scenario, nominal: BogieModel) -> np
             continue
         if not 0.0 <= factor < math.inf:  # NaN fails the comparisons too
             base.scaled_values(**{keys[0]: factor})  # raises: the factor, its parameter and what is allowed
-        for key in keys:
-            value = validate_value(key, getattr(base, key) * factor)
-            if key == "Wpa":
-                wpa = value
-            if key in _COEFFICIENT_INDEX:
-                out[_COEFFICIENT_INDEX[key]] = value
+        wpa = _scale_into(out, base, keys, factor, validate_value, wpa)
     if s.conicity is not None:
         out[_COEFFICIENT_INDEX["lam"]] = validate_value("lam", s.conicity)
     if wpa != base.Wpa or s.creep_factor != 1.0:
