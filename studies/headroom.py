@@ -6,6 +6,7 @@ conicity in the v1 loop, and with one limit of the loop relaxed at a time (docs/
     python studies/headroom.py --policy robust_steering # any controller in the same worlds
     python studies/headroom.py --full --world v1 --weights 1,3,10 --rate-weights 10,30   # the reference's weights
     python studies/headroom.py --full --world v1 --policy privileged_mpc   # the reference with hard limits (MPC)
+    python studies/headroom.py --full --world v1 --policy privileged_mpc --n-sub 20   # at half v1's step
 
 Worlds (each relaxes one thing of the v1 loop; the protocol is unchanged):
 
@@ -67,13 +68,18 @@ def linear_limit_kmh(controller: PrivilegedController, conicity: float, speeds_k
     return None
 
 
-def run(policy: str, world: dict, conicities: list[float], full: bool, r: float | None, rate_weight: float | None) -> dict[str, float]:
-    env = make_config(copy.deepcopy(world), variant="v1")
+def run(policy: str, world: dict, conicities: list[float], full: bool, r: float | None, rate_weight: float | None,
+        n_sub: int | None = None, mpc: dict[str, Any] | None = None) -> dict[str, float]:  # fmt: skip
+    overlay = copy.deepcopy(world)
+    if n_sub is not None:  # the step-convergence check: v1's RK4 at n_sub substeps
+        overlay["integration"] = {"n_sub": n_sub}
+    env = make_config(overlay, variant="v1")
     cols = tuple("nominal" if np.isclose(c, 0.025) else f"conicity:{c:g}" for c in conicities)
     settings = sp.Settings(columns=cols, progress=False) if full else sp.screening_settings(columns=cols, progress=False)
     source: Any = policy
     if policy in REFERENCES:
-        source = lambda cfg: REFERENCES[policy](cfg, r=r, rate_weight=rate_weight)  # noqa: E731
+        extra = (mpc or {}) if policy == "privileged_mpc" else {}
+        source = lambda cfg: REFERENCES[policy](cfg, r=r, rate_weight=rate_weight, **extra)  # noqa: E731
     res = sp.evaluate_policy_v2(source, env, settings, parts=("critical",), label=policy)
     return {k: v["kmh"] for k, v in res["by_conicity"].items()}
 
@@ -92,6 +98,9 @@ def main() -> None:
     parser.add_argument("--weights", default="scheduled", help="a reference's command weights r, comma-separated "
                         "(default: scheduled on the true conicity, its weights_by_conicity)")
     parser.add_argument("--rate-weights", default="scheduled", help="its force-rate weights, comma-separated (default: scheduled)")
+    parser.add_argument("--horizon", type=int, default=None, help="privileged_mpc: its horizon, env steps (default: mpc.DEFAULT_HORIZON)")
+    parser.add_argument("--rate-basis", default=None, help="privileged_mpc: 'step' (default) or 'sample' (mpc.RATE_BASES)")
+    parser.add_argument("--n-sub", type=int, default=None, help="RK4 substeps per env step (default: v1's; 20 halves its step)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     conicities = [float(c) for c in args.conicity.split(",")]
@@ -105,7 +114,8 @@ def main() -> None:
         for q in _weights(args.rate_weights):
             for name in names:
                 start = time.monotonic()
-                values = run(args.policy, all_worlds[name], conicities, args.full, r, q)
+                mpc = {k: v for k, v in (("horizon", args.horizon), ("rate_basis", args.rate_basis)) if v is not None}
+                values = run(args.policy, all_worlds[name], conicities, args.full, r, q, args.n_sub, mpc)
                 row = {"policy": args.policy, "world": name, "r": r, "rate_weight": q, "kmh": values,
                        "seconds": round(time.monotonic() - start)}  # fmt: skip
                 rows.append(row)
