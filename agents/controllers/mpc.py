@@ -171,16 +171,9 @@ class MPCReference(PrivilegedController):
         else:
             self._previous[rows] = 0.0
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        n = obs.shape[0]
-        if self.force_state.shape[0] != n:
-            self.reset(n)
-        actions = self.planned_command(self.state_estimate(obs), np.asarray(self.speed_kmh(obs), dtype=float).reshape(-1))
-        self._advance(actions)
-        return actions.astype(np.float32)
-
     def command(self, x_lat: np.ndarray, gains: np.ndarray) -> np.ndarray:
-        raise NotImplementedError("MPCReference.command: the plan needs the rows' speeds; use planned_command(x_lat, speed_kmh)")
+        raise NotImplementedError("MPCReference.command: a linear law with given gains is not this controller's; "
+                                  "use planned_command(x_lat, speed_kmh)")
 
     def planned_command(self, x_lat: np.ndarray, speed_kmh: np.ndarray) -> np.ndarray:
         """The first command of each row's plan for lateral states ``x_lat`` (n, 16) at

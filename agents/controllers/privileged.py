@@ -151,9 +151,14 @@ class PrivilegedController(LQRController):
         n = obs.shape[0]
         if self.force_state.shape[0] != n:
             self.reset(n)
-        actions = self.command(self.state_estimate(obs), self.gain_at(self.speed_kmh(obs)))
+        actions = self.planned_command(self.state_estimate(obs), np.asarray(self.speed_kmh(obs), dtype=float).reshape(-1))
         self._advance(actions)
         return actions.astype(np.float32)
+
+    def planned_command(self, x_lat: np.ndarray, speed_kmh: np.ndarray) -> np.ndarray:
+        """The commands :meth:`act` sends for lateral states ``x_lat`` (n, 16) at the rows' speeds
+        ``speed_kmh`` (n,): the linear law at the interpolated gains (an MPC plans instead)."""
+        return self.command(x_lat, self.gain_at(speed_kmh))
 
     def command(self, x_lat: np.ndarray, gains: np.ndarray) -> np.ndarray:
         """The commands for lateral states ``x_lat`` (n, 16) with ``gains`` (n, n_act, n_z) and the
