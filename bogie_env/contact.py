@@ -180,7 +180,8 @@ def _creep_from_axes(a: float, b: float, E: float, nu: float) -> tuple[float, fl
 
 def computed_creep(normal_load: float, params: BogieParams) -> tuple[float, float, float, float]:
     """The computed (f11, f12, f22, f33) of ``params``' bogie under one wheel load (N), without
-    the overrides set in ``params``: :func:`creep_rows` of one load."""
+    the overrides set in ``params``: Eqs. (7)-(10) on the Hertz ellipse of that load (N, N m,
+    N m^2, N), :func:`creep_rows` of one load."""
     A, B = wheel_rail_curvatures(params)
     contact = hertz_ellipse(normal_load, A, B, params.E, params.nu)
     return _creep_from_axes(contact.a, contact.b, params.E, params.nu)

@@ -203,3 +203,21 @@ def test_printed_eq12_and_eq14_do_not_fit_the_table():
         assert abs(c22_printed / row[3] - 1) > 0.12 and abs(fixed[1] / row[3] - 1) < 0.02
         if g == 2.0:
             assert abs(c33_printed / row[5] - 1) > 0.5 and abs(fixed[3] / row[5] - 1) < 0.05
+
+
+def test_creep_of_one_load_scales_as_hertz_says():
+    """computed_creep at the bogie's own load is creep_coefficients'; under k times the load the
+    ellipse keeps its shape and its semi-axes grow as k^(1/3), so f11, f33 ~ k^(2/3) (area),
+    f12 ~ k (area^1.5) and f22 ~ k^(4/3) (area^2): Eqs. (7)-(10) with Hertz's cube-root law."""
+    from bogie_env.contact import computed_creep, creep_coefficients
+    from bogie_env.params import BogieParams
+
+    params = BogieParams.paper()
+    own = computed_creep(0.5 * params.Wpa, params)
+    reference = creep_coefficients(params)
+    assert own == pytest.approx((reference.f11, reference.f12, reference.f22, reference.f33), rel=1e-14)
+    k = 1.7
+    scaled = computed_creep(0.5 * params.Wpa * k, params)
+    exponents = (2 / 3, 1.0, 4 / 3, 2 / 3)
+    for value, base, e in zip(scaled, own, exponents):
+        assert value / base == pytest.approx(k**e, rel=1e-12)

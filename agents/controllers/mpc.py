@@ -18,8 +18,15 @@ unknowns) at the design speed nearest the row's speed:
   force rate ``w_j (g_j F_max,j u_held - F_j)`` at every sample that the commands can still move
   (from the channel's delay on).
 
-Without active constraints the first command is the LQR's, so the reference can only gain by
-the limits. The QP is solved by OSQP (a well-kept first-order QP solver, warm-started from the
+The condensed form is the standard one (Borrelli, Bemporad & Morari, *Predictive Control for
+Linear and Hybrid Systems*, 2017, Sec. 8.2; Maciejowski, *Predictive Control with Constraints*,
+2002, Ch. 3): ``z_k = A^k z0 + sum_{i<k} A^(k-1-i) B u_i`` stacked as ``Z = Phi z0 + Gamma U``,
+so the cost is ``U'(Gamma'Qbar Gamma + Gamma'Sbar + Sbar'Gamma + Rbar) U + 2 z0'(Phi'Qbar Gamma +
+Phi'Sbar) U`` plus terms without ``U``. Forces in N (N m for yaw), rates in N/s. The step basis
+follows from the zero-order-held lag ``dF/dt = w (target - F)``: over a step of ``dt`` the force
+moves by ``(1 - exp(-w dt)) (target - F)``, which is ``(1 - exp(-w dt)) / (w dt)`` times the
+sample's rate ``w (target - F)`` times ``dt``. Without active constraints the first command is the
+LQR's, so the reference can only gain by the limits. The QP is solved by OSQP (a well-kept first-order QP solver, warm-started from the
 row's previous solution shifted by one step). Where OSQP does not report a solution, the row takes
 the privileged LQR's clipped command for that step (:attr:`fallbacks` counts them).
 """
