@@ -7,6 +7,7 @@ conicity in the v1 loop, and with one limit of the loop relaxed at a time (docs/
     python studies/headroom.py --full --world v1 --weights 1,3,10 --rate-weights 10,30   # the reference's weights
     python studies/headroom.py --full --world v1 --policy privileged_mpc   # the reference with hard limits (MPC)
     python studies/headroom.py --full --world v1 --policy privileged_mpc --n-sub 20   # at half v1's step
+    python studies/headroom.py --full --world v1 --policy privileged_mpc_sensors   # told everything, sees the sensors
 
 Worlds (each relaxes one thing of the v1 loop; the protocol is unchanged):
 
@@ -33,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from bogie_agents.evaluation import stability_protocol as sp
-from bogie_agents.controllers.mpc import MPCReference
-from bogie_agents.controllers.privileged import PrivilegedController
+from bogie_agents.controllers.mpc import MPCReference, SensorMPCReference
+from bogie_agents.controllers.privileged import PrivilegedController, SensorPrivilegedController
 from bogie_env.actuators import CHANNEL_NAMES
 from bogie_env.envs.config import make_config
 from bogie_env.envs.scenario import Scenario
@@ -42,7 +43,8 @@ from bogie_env.envs.sensors import SENSOR_NAMES
 
 
 #: the privileged references, whose weights --weights and --rate-weights set
-REFERENCES = {"privileged": PrivilegedController, "privileged_mpc": MPCReference}
+REFERENCES = {"privileged": PrivilegedController, "privileged_mpc": MPCReference,
+              "privileged_sensors": SensorPrivilegedController, "privileged_mpc_sensors": SensorMPCReference}
 
 
 def worlds(base: dict) -> dict[str, dict[str, Any]]:
@@ -78,7 +80,7 @@ def run(policy: str, world: dict, conicities: list[float], full: bool, r: float 
     settings = sp.Settings(columns=cols, progress=False) if full else sp.screening_settings(columns=cols, progress=False)
     source: Any = policy
     if policy in REFERENCES:
-        extra = (mpc or {}) if policy == "privileged_mpc" else {}
+        extra = (mpc or {}) if issubclass(REFERENCES[policy], MPCReference) else {}
         source = lambda cfg: REFERENCES[policy](cfg, r=r, rate_weight=rate_weight, **extra)  # noqa: E731
     res = sp.evaluate_policy_v2(source, env, settings, parts=("critical",), label=policy)
     return {k: v["kmh"] for k, v in res["by_conicity"].items()}

@@ -108,9 +108,10 @@ def test_bad_settings_name_the_field(field, value):
         MPCReference(make_config(variant="v1"), step_kmh=100.0, **{field: value})
 
 
-def test_the_protocol_tells_it_and_it_acts_in_a_task():
+def test_the_protocol_tells_it_and_it_acts_in_a_task(capfd):
     """By name, as the protocol builds it: told a scenario it stays an MPC reference with its
-    horizon and the weights scheduled on the told conicity, and it commands a task's rows."""
+    horizon and the weights scheduled on the told conicity, and it commands a task's rows
+    without OSQP's line per solve on stdout (osqp/osqp#785)."""
     from bogie_agents.evaluation import stability_protocol as sp
     from bogie_env.envs.task import HuntingTask
 
@@ -126,3 +127,5 @@ def test_the_protocol_tells_it_and_it_acts_in_a_task():
     actions = told.act(task.obs[rows])
     assert actions.shape == (len(rows), told.n_act) and actions.dtype == np.float32
     assert np.all(np.abs(actions) <= 1.0) and told.fallbacks == 0
+    told.act(np.zeros_like(task.obs[rows]))  # at rest: no active constraint, the case OSQP reports
+    assert "Polishing" not in capfd.readouterr().out

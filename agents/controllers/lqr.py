@@ -453,17 +453,23 @@ class LQGController(LQRController):
         if self.estimate.shape[0] != n:
             self.reset(n)
         speed = self.speed_kmh(obs)
-        ad, bd = self._interp(self.ads, speed), self._interp(self.bds, speed)
-        cd, kal = self._interp(self.cds, speed), self._interp(self.kalmans, speed)
+        self.update_estimate(obs, speed)
+        gains = self.gain_at(speed)
+        actions = np.clip(-np.einsum("nij,nj->ni", gains, self.estimate), -1.0, 1.0)
+        self.last_action = actions
+        return actions.astype(np.float32)
+
+    def update_estimate(self, obs: np.ndarray, speed_kmh: np.ndarray) -> np.ndarray:
+        """The filter one step on: predicted with :attr:`last_action` (the command sent last),
+        corrected with the sensors of ``obs``; returns the new estimate (n, n_aug)."""
+        ad, bd = self._interp(self.ads, speed_kmh), self._interp(self.bds, speed_kmh)
+        cd, kal = self._interp(self.cds, speed_kmh), self._interp(self.kalmans, speed_kmh)
         # predict with the last command, then correct with the new measurement
         prior = np.einsum("nij,nj->ni", ad, self.estimate) + np.einsum("nij,nj->ni", bd, self.last_action)
         measured = obs[:, : len(T.SENSORS)].astype(float)
         predicted = np.einsum("nij,nj->ni", cd, prior) + self.last_action @ self.feedthrough.T
         self.estimate = prior + np.einsum("nij,nj->ni", kal, measured - predicted)
-        gains = self.gain_at(speed)
-        actions = np.clip(-np.einsum("nij,nj->ni", gains, self.estimate), -1.0, 1.0)
-        self.last_action = actions
-        return actions.astype(np.float32)
+        return self.estimate
 
 
 class RateAwareLQGController(LQGController):

@@ -33,6 +33,8 @@ the privileged LQR's clipped command for that step (:attr:`fallbacks` counts the
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -44,7 +46,7 @@ from scipy.linalg import solve_discrete_are
 from bogie_env.envs.scenario import Scenario
 
 from .lqr import force_rate_rows
-from .privileged import PrivilegedController
+from .privileged import PrivilegedController, SensorFed
 
 RATE_BASES = ("step", "sample")
 #: ``(r, rate_weight)`` by true conicity (``(upper conicity, weights)``, as the privileged
@@ -52,6 +54,13 @@ RATE_BASES = ("step", "sample")
 #: {0.3, 1, 3, 10} per conicity on the screening seeds (docs/studies/headroom.md, "Hard limits").
 MPC_WEIGHTS_BY_CONICITY: tuple[tuple[float, tuple[float, float]], ...] = ((0.25, (1.0, 0.0)), (math.inf, (10.0, 0.0)))
 DEFAULT_HORIZON = 20  # steps of the env (0.2 s at v1's 10 ms): more than one hunting cycle above 5 Hz
+
+
+def quiet_osqp() -> contextlib.AbstractContextManager:
+    """``sys.stdout`` swallowed while OSQP solves: OSQP 1.0 prints "Polishing not needed" through
+    Python's stdout on every solve without an active constraint, even with ``verbose=False``
+    (osqp/osqp#785). Another thread's prints during a solve are swallowed too."""
+    return contextlib.redirect_stdout(io.StringIO())
 
 
 @dataclass
@@ -136,7 +145,7 @@ class MPCReference(PrivilegedController):
         """The reference designed for ``scenario`` in the loop of ``loop_config``, with this one's
         weights, horizon and rate basis."""
         step = float(self.speeds_kmh[1] - self.speeds_kmh[0]) if len(self.speeds_kmh) > 1 else 10.0
-        return MPCReference(self.config, *self.weights_given, step, scenario, loop_config, self._v_range, self.horizon, self.rate_basis)
+        return type(self)(self.config, *self.weights_given, step, scenario, loop_config, self._v_range, self.horizon, self.rate_basis)
 
     def qp(self, k: int) -> CondensedQP:
         """The condensed QP at design speed ``k`` (built on first use)."""
@@ -192,6 +201,12 @@ class MPCReference(PrivilegedController):
         grid = float(self.speeds_kmh[1] - self.speeds_kmh[0]) if len(self.speeds_kmh) > 1 else 1.0
         nearest = np.clip(np.rint((speed_kmh - self.speeds_kmh[0]) / grid), 0, len(self.speeds_kmh) - 1).astype(int)
         out = np.empty((z.shape[0], self.n_act))
+        with quiet_osqp():
+            self._solve_rows(z, nearest, out)
+        return out
+
+    def _solve_rows(self, z: np.ndarray, nearest: np.ndarray, out: np.ndarray) -> None:
+        """Each row's QP at its design speed ``nearest``; the first commands into ``out``."""
         for i, k in enumerate(nearest.tolist()):
             qp, solver = self.qp(k), self.solver(k)
             g = qp.offset @ z[i]
@@ -205,6 +220,14 @@ class MPCReference(PrivilegedController):
                 self.fallbacks += 1
                 self._previous[i] = 0.0
                 out[i] = np.clip(-self.points[k].gain @ z[i], -1.0, 1.0)
-        return out
 
-__all__ = ["CondensedQP", "DEFAULT_HORIZON", "MPCReference", "condensed_qp"]
+
+class SensorMPCReference(SensorFed, MPCReference):
+    """``privileged_mpc`` seeing only the sensors: told the true scenario, its lateral states from
+    a Kalman filter designed on that scenario (:class:`bogie_agents.controllers.privileged.SensorFed`).
+    Against ``privileged_mpc`` it measures what the sensors cost the headroom; not a baseline."""
+
+    name = "privileged_mpc_sensors"
+
+
+__all__ = ["CondensedQP", "DEFAULT_HORIZON", "MPCReference", "SensorMPCReference", "condensed_qp"]

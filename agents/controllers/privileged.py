@@ -43,7 +43,7 @@ from bogie_env.envs.config import bogie_params, merge_config
 from bogie_env.envs.scenario import Scenario, scenario_model
 from bogie_env.sampled_plant import sampled_loop_plant
 
-from .lqr import DesignPoint, LQRController, add_rate_cost, lateral_model, lqr_gain_cross
+from .lqr import N_LAT, DesignPoint, LQGController, LQRController, add_rate_cost, lateral_model, lqr_gain_cross
 
 #: The weights ``(r, rate_weight)`` by true conicity: ``(upper conicity, weights)``, the first
 #: row whose bound exceeds the conicity. Chosen per conicity class on the protocol's seeds over
@@ -180,3 +180,59 @@ class PrivilegedController(LQRController):
         self.force_state = target + (self.force_state - target) * w
         if self.max_delay:
             self.history = np.concatenate([actions[:, None, :], self.history[:, :-1]], axis=1)
+
+
+class ScenarioFilter(LQGController):
+    """The LQG's steady-state Kalman filter (:class:`LQGController`: the sampled loop plant with
+    the command registers, each sensor's filter and bias) designed on a told scenario's bogie
+    ``model`` with its channels' true command gains ``channel_gain``. Only its estimate is used."""
+
+    name = "scenario_filter"
+
+    def __init__(self, env_config: dict, model: BogieModel, channel_gain: np.ndarray, v_range_kmh: tuple[float, float]) -> None:
+        self._channel_gain = np.asarray(channel_gain, dtype=float)
+        super().__init__(env_config, model=model, v_range_kmh=v_range_kmh)
+
+    def continuous_model(self, speed: float) -> tuple[np.ndarray, np.ndarray]:
+        a, b = super().continuous_model(speed)
+        return a, b * self._channel_gain[None, :]
+
+
+class SensorFed:
+    """Mixin for a privileged reference (first base): told the true scenario as before, but it
+    sees only the sensors (v1's noise, bias, filters). Its lateral states are the estimate of a
+    :class:`ScenarioFilter` designed on the told scenario and driven by the commands it sent; the
+    lag and command registers are replicated from those commands as before. Against the
+    full-state reference it measures what seeing only the sensors costs when everything else is known."""
+
+    observation_type = "sensors"
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        speeds = self.speeds_kmh
+        self.filter = ScenarioFilter(self.config, self.model, self.channel_gain, (float(speeds[0]), float(speeds[-1])))
+
+    def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
+        super().reset(n_envs, rows)
+        if hasattr(self, "filter"):  # the base class resets during its own construction
+            self.filter.reset(n_envs, rows)
+
+    def state_estimate(self, obs: np.ndarray) -> np.ndarray:
+        """The filter's lateral states after this step's sensors (the filter advances)."""
+        if self.filter.estimate.shape[0] != obs.shape[0]:
+            self.filter.reset(obs.shape[0])
+        return self.filter.update_estimate(obs, np.asarray(self.speed_kmh(obs), dtype=float).reshape(-1))[:, :N_LAT].copy()
+
+    def _advance(self, actions: np.ndarray, channel_gain: np.ndarray | None = None) -> None:
+        super()._advance(actions, channel_gain)
+        self.filter.last_action = np.asarray(actions, dtype=float).copy()
+
+    def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray) -> Any:
+        raise NotImplementedError(f"{self.name}: no linear controller model for the margins (a Kalman filter "
+                                  "feeding a privileged design); margins are defined for buildable controllers")
+
+
+class SensorPrivilegedController(SensorFed, PrivilegedController):
+    """``privileged`` seeing only the sensors (:class:`SensorFed`); not a baseline."""
+
+    name = "privileged_sensors"
