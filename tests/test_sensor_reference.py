@@ -1,5 +1,6 @@
-"""The privileged references seeing only the sensors (privileged_sensors, privileged_mpc_sensors):
-their Kalman filter, designed on the told scenario, recovers the simulator's lateral states."""
+"""The references told the true scenario but seeing only the sensors (privileged_sensors,
+privileged_mpc_sensors) and the MPC told the conicity class (mpc): their Kalman filter recovers
+the simulator's lateral states, and their margins model is what they do."""
 
 from __future__ import annotations
 
@@ -66,8 +67,40 @@ def test_the_filter_knows_a_failed_channel():
     assert estimate_error(faulty) < 0.5 * estimate_error(faulty, {"conicity": 0.1, "failed_actuator": "none"})
 
 
-def test_it_sees_the_sensors_and_has_no_margins_model():
-    controller = SensorPrivilegedController(policy_config(make_config(variant="v1"), "sensors"))
-    assert controller.observation_type == "sensors" and controller.privileged
-    with pytest.raises(NotImplementedError, match="privileged_sensors"):
-        controller.controller_model(8, 300.0, np.zeros(8))
+@pytest.mark.parametrize("name", ["privileged_sensors", "mpc"])
+def test_the_margins_model_is_what_it_does(name):
+    """The margins' linear model (filter, last command, replicated lag and registers, the LQR
+    gains) is what ``act`` does about the operating point (``mpc`` without active constraints,
+    where its first command is its LQR's); a wrong model fails the same check."""
+    if name == "mpc":
+        pytest.importorskip("osqp")
+    from bogie_agents.controllers.policies import load_policy
+    from bogie_agents.design import margins as M
+
+    v1 = make_config(variant="v1")
+    policy = load_policy(name, policy_config(v1, "sensors", 0.1))
+    loop = M.linear_loop(policy, v1, 200.0)
+    y0 = M.observe(loop.plant.x_eq, loop.plant.force_eq, 200.0 / 3.6, M.policy_config(v1, policy), loop.plant.model)[0]
+    assert M.check_controller_model(policy, loop.ctrl, y0, loop.u_eq, amplitude=1e-3) < 5e-3  # float32 act, OSQP tolerance
+    wrong = M.ControllerModel(loop.ctrl.a, loop.ctrl.b, loop.ctrl.c, loop.ctrl.d * 1.1, "wrong")
+    assert M.check_controller_model(policy, wrong, y0, loop.u_eq, amplitude=1e-3) > 2e-2
+
+
+def test_mpc_is_told_the_class_only_and_acts_on_the_sensors():
+    """``mpc`` is a baseline: the protocol builds it for the told conicity class (no scenario),
+    and it commands a task's rows from the sensors within the force limit."""
+    pytest.importorskip("osqp")
+    from bogie_agents.controllers.mpc import SensorMPC
+    from bogie_agents.evaluation import stability_protocol as sp
+
+    v1 = make_config(variant="v1")
+    settings = sp.screening_settings(columns=("conicity:0.3",), progress=False)
+    ctx = sp.PartContext(sp.factory_for("mpc"), v1, settings, "sensors", sp.Progress("p", False))
+    cases = [c for col in sp.columns(v1, settings).values() for c in col]
+    task, groups = sp.Runner(ctx)._task(cases, np.full(len(cases), 150.0), "default")
+    (rows, controller), = groups.groups
+    assert isinstance(controller, SensorMPC) and not controller.privileged and controller.observation_type == "sensors"
+    assert controller.model.params.lam == pytest.approx(0.3) and controller.r == 10.0
+    controller.reset(len(rows))
+    actions = controller.act(task.obs[rows])
+    assert actions.shape == (len(rows), controller.n_act) and np.all(np.abs(actions) <= 1.0)

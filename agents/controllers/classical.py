@@ -8,7 +8,8 @@ residual policy's ``baseline`` (:mod:`bogie_agents.controllers.residual`) accept
 - ``privileged``: :mod:`bogie_agents.controllers.privileged` (the reference told the true scenario; not a baseline);
 - ``privileged_mpc``: :mod:`bogie_agents.controllers.mpc` (the same with hard force and rate limits; not a baseline);
 - ``privileged_sensors``, ``privileged_mpc_sensors``: the two references told the true scenario but seeing only the
-  sensors through a Kalman filter (what the sensors cost the headroom; not baselines).
+  sensors through a Kalman filter (what the sensors cost the headroom; not baselines);
+- ``mpc``: :mod:`bogie_agents.controllers.mpc` (the same MPC on the sensors, told the conicity class only: a baseline).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from __future__ import annotations
 from .adaptive import AdaptiveLQGController, AdaptiveRateLQGController
 from .curving_assist import SteeringController
 from .lqr import LQGController, LQRController, PassiveController, RateAwareLQGController, SkyhookController
-from .mpc import MPCReference, SensorMPCReference
+from .mpc import MPCReference, SensorMPC, SensorMPCReference
 from .privileged import PrivilegedController, SensorPrivilegedController
 from .robust import RobustDampingController
 
@@ -26,4 +27,5 @@ CLASSICAL = {"passive": PassiveController, "skyhook": SkyhookController, "lqr": 
              "adaptive_lqg_rate": AdaptiveRateLQGController,
              "robust_damping": RobustDampingController, "robust_steering": SteeringController,
              "privileged": PrivilegedController, "privileged_mpc": MPCReference,
-             "privileged_sensors": SensorPrivilegedController, "privileged_mpc_sensors": SensorMPCReference}
+             "privileged_sensors": SensorPrivilegedController, "privileged_mpc_sensors": SensorMPCReference,
+             "mpc": SensorMPC}

@@ -230,4 +230,14 @@ class SensorMPCReference(SensorFed, MPCReference):
     name = "privileged_mpc_sensors"
 
 
-__all__ = ["CondensedQP", "DEFAULT_HORIZON", "MPCReference", "SensorMPCReference", "condensed_qp"]
+class SensorMPC(SensorMPCReference):
+    """A buildable MPC (``mpc``): ``privileged_mpc_sensors`` told only what ``lqg_rate`` is told,
+    the conicity class (the config's conicity), and designed on the nominal bogie at that
+    conicity with every channel working. Sensors only; a baseline like any classical row."""
+
+    name = "mpc"
+    privileged = False
+    knows = "conicity class"
+
+
+__all__ = ["CondensedQP", "DEFAULT_HORIZON", "MPCReference", "SensorMPC", "SensorMPCReference", "condensed_qp"]

@@ -227,10 +227,6 @@ class SensorFed:
         super()._advance(actions, channel_gain)
         self.filter.last_action = np.asarray(actions, dtype=float).copy()
 
-    def controller_model(self, n_obs: int, speed_kmh: float, y0: np.ndarray) -> Any:
-        raise NotImplementedError(f"{self.name}: no linear controller model for the margins (a Kalman filter "
-                                  "feeding a privileged design); margins are defined for buildable controllers")
-
 
 class SensorPrivilegedController(SensorFed, PrivilegedController):
     """``privileged`` seeing only the sensors (:class:`SensorFed`); not a baseline."""

@@ -242,21 +242,24 @@ def lqr_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
     return ControllerModel(a, b, c, d, "LQR gains (interpolated at the speed)")
 
 
-def privileged_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
+def privileged_model(policy, n_obs: int, speed_kmh: float, to_lateral: np.ndarray | None = None) -> ControllerModel:
     """The privileged reference (:class:`bogie_agents.controllers.privileged.PrivilegedController`): states ``[F_hat, registers]`` (the replicated lag and command registers),
-    ``u = -K [x_lat(y), F_hat, registers]`` at the speed; exactly what its ``act`` does without clipping."""
+    ``u = -K [x_lat(y), F_hat, registers]`` at the speed; exactly what its ``act`` does without clipping.
+    ``to_lateral`` (16, n_obs): its input's map to the lateral states (default: the full-state observation's)."""
     from bogie_env.dynamics import LATERAL_STATES
 
     gain = policy.gain_at(np.array([speed_kmh]))[0]
     lat = list(LATERAL_STATES)
     n_lat, m = len(lat), policy.n_act
-    select = np.zeros((n_lat, n_obs))
-    for i, state in enumerate(lat):
-        select[i, state] = STATE_SCALES[state]
+    if to_lateral is None:
+        to_lateral = np.zeros((n_lat, n_obs))
+        for i, state in enumerate(lat):
+            to_lateral[i, state] = STATE_SCALES[state]
+    n_in = to_lateral.shape[1]
     n_c = gain.shape[1] - n_lat
     c = -gain[:, n_lat:]
-    d = -gain[:, :n_lat] @ select
-    a, b = np.zeros((n_c, n_c)), np.zeros((n_c, n_obs))
+    d = -gain[:, :n_lat] @ to_lateral
+    a, b = np.zeros((n_c, n_c)), np.zeros((n_c, n_in))
     w = np.exp(-policy.bandwidth * policy.dt)
     pos = m
     for j, delay in enumerate(policy.delays):
@@ -273,6 +276,32 @@ def privileged_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
                 a[pos + i, pos + i - 1] = 1.0
             pos += delay
     return ControllerModel(a, b, c, d, "privileged LQR gains with the replicated lag and registers (at the speed)")
+
+
+def sensor_fed_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
+    """A privileged design on a Kalman estimate (:class:`bogie_agents.controllers.privileged.SensorFed`:
+    ``privileged_sensors``, and ``mpc`` / ``privileged_mpc_sensors`` without active constraints,
+    where an MPC's first command is its LQR's): states ``[estimate, last command, F_hat,
+    registers]``; the filter's corrected lateral states feed :func:`privileged_model`."""
+    from bogie_env.dynamics import LATERAL_STATES
+
+    f = policy.filter
+    v = np.array([speed_kmh])
+    ad, bd = f._interp(f.ads, v)[0], f._interp(f.bds, v)[0]
+    cd, kal = f._interp(f.cds, v)[0], f._interp(f.kalmans, v)[0]
+    n_aug, m, n_s, n_lat = ad.shape[0], policy.n_act, len(T.SENSORS), len(LATERAL_STATES)
+    s6 = np.zeros((n_s, n_obs))
+    s6[:, :n_s] = np.eye(n_s)
+    mm = np.eye(n_aug) - kal @ cd
+    e_e, e_l, e_y = mm @ ad, mm @ bd - kal @ f.feedthrough, kal @ s6  # the corrected estimate
+    inner = privileged_model(policy, n_lat, speed_kmh, to_lateral=np.eye(n_lat))  # input: the estimated lateral states
+    n_q = inner.a.shape[0]
+    x_e, x_l, x_y = e_e[:n_lat], e_l[:n_lat], e_y[:n_lat]
+    c = np.hstack([inner.d @ x_e, inner.d @ x_l, inner.c])
+    a = np.block([[e_e, e_l, np.zeros((n_aug, n_q))], [c], [inner.b @ x_e, inner.b @ x_l, inner.a]])
+    b = np.vstack([e_y, inner.d @ x_y, inner.b @ x_y])
+    assert a.shape == (n_aug + m + n_q, n_aug + m + n_q)
+    return ControllerModel(a, b, c, inner.d @ x_y, "privileged LQR gains on the told scenario's Kalman filter (at the speed)")
 
 
 def lqg_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
@@ -308,7 +337,7 @@ def controller_model(policy, n_obs: int, speed_kmh: float, y0: np.ndarray) -> Co
     autograd, anything else by finite differences of ``act`` (assumed stateless).
     """
     from ..controllers.lqr import LQGController, LQRController, PassiveController, SkyhookController
-    from ..controllers.privileged import PrivilegedController
+    from ..controllers.privileged import PrivilegedController, SensorFed
 
     hook = getattr(policy, "controller_model", None)
     if callable(hook):
@@ -324,6 +353,8 @@ def controller_model(policy, n_obs: int, speed_kmh: float, y0: np.ndarray) -> Co
         return skyhook_model(policy, n_obs)
     if isinstance(policy, LQGController):
         return lqg_model(policy, n_obs, speed_kmh)
+    if isinstance(policy, SensorFed):
+        return sensor_fed_model(policy, n_obs, speed_kmh)
     if isinstance(policy, PrivilegedController):
         return privileged_model(policy, n_obs, speed_kmh)
     if isinstance(policy, LQRController):
