@@ -285,15 +285,8 @@ def sensor_fed_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
     registers]``; the filter's corrected lateral states feed :func:`privileged_model`."""
     from bogie_env.dynamics import LATERAL_STATES
 
-    f = policy.filter
-    v = np.array([speed_kmh])
-    ad, bd = f._interp(f.ads, v)[0], f._interp(f.bds, v)[0]
-    cd, kal = f._interp(f.cds, v)[0], f._interp(f.kalmans, v)[0]
-    n_aug, m, n_s, n_lat = ad.shape[0], policy.n_act, len(T.SENSORS), len(LATERAL_STATES)
-    s6 = np.zeros((n_s, n_obs))
-    s6[:, :n_s] = np.eye(n_s)
-    mm = np.eye(n_aug) - kal @ cd
-    e_e, e_l, e_y = mm @ ad, mm @ bd - kal @ f.feedthrough, kal @ s6  # the corrected estimate
+    e_e, e_l, e_y = filter_update(policy.filter, n_obs, speed_kmh)  # the corrected estimate
+    n_aug, m, n_lat = e_e.shape[0], policy.n_act, len(LATERAL_STATES)
     inner = privileged_model(policy, n_lat, speed_kmh, to_lateral=np.eye(n_lat))  # input: the estimated lateral states
     n_q = inner.a.shape[0]
     x_e, x_l, x_y = e_e[:n_lat], e_l[:n_lat], e_y[:n_lat]
@@ -304,19 +297,24 @@ def sensor_fed_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
     return ControllerModel(a, b, c, inner.d @ x_y, "privileged LQR gains on the told scenario's Kalman filter (at the speed)")
 
 
-def lqg_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
-    """LQG: the Kalman filter's estimate and the last command are the states."""
+def filter_update(policy, n_obs: int, speed_kmh: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An LQG filter's corrected estimate ``e+ = E_e e + E_l u_last + E_y y`` at the speed:
+    ``(E_e, E_l, E_y)``, ``y`` the observation (its first entries the sensors)."""
     v = np.array([speed_kmh])
     ad, bd = policy._interp(policy.ads, v)[0], policy._interp(policy.bds, v)[0]
     cd, kal = policy._interp(policy.cds, v)[0], policy._interp(policy.kalmans, v)[0]
-    dmeas = policy.feedthrough
-    gain = policy.gain_at(v)[0]
-    n_aug, m = ad.shape[0], policy.n_act
     n_s = len(T.SENSORS)
     s6 = np.zeros((n_s, n_obs))
     s6[:, :n_s] = np.eye(n_s)
-    mm = np.eye(n_aug) - kal @ cd
-    e_e, e_l, e_y = mm @ ad, mm @ bd - kal @ dmeas, kal @ s6
+    mm = np.eye(ad.shape[0]) - kal @ cd
+    return mm @ ad, mm @ bd - kal @ policy.feedthrough, kal @ s6
+
+
+def lqg_model(policy, n_obs: int, speed_kmh: float) -> ControllerModel:
+    """LQG: the Kalman filter's estimate and the last command are the states."""
+    e_e, e_l, e_y = filter_update(policy, n_obs, speed_kmh)
+    gain = policy.gain_at(np.array([speed_kmh]))[0]
+    n_aug, m = e_e.shape[0], policy.n_act
     a = np.block([[e_e, e_l], [-gain @ e_e, -gain @ e_l]])
     b = np.vstack([e_y, -gain @ e_y])
     c = np.hstack([-gain @ e_e, -gain @ e_l])
