@@ -286,9 +286,13 @@ def cmd_margins(args: argparse.Namespace) -> int:
 
     if not speeds or not all(MIN_SPEED_KMH <= v <= MAX_SPEED_KMH for v in speeds):  # False for NaN
         raise ConfigError(f"--speeds {args.speeds!r}: give one or more speeds in [{MIN_SPEED_KMH:g}, {MAX_SPEED_KMH:g}] km/h")
+    from .evaluation.stability_protocol import policy_config
+
+    # a controller told the conicity class is designed for --conicity, as the protocol tells it its column's
+    policy_env = env_config if args.conicity is None else policy_config(env_config, env_config["observation"]["type"], args.conicity)
     results = []
     for spec in args.policy:
-        policy = load_policy(spec, env_config, args.trust_policy)
+        policy = load_policy(spec, policy_env, args.trust_policy)
         results.append({"policy": spec, "margins": margins_table(policy, env_config, speeds, conicity=args.conicity)})
     payload = {"env_id": args.env, "env_version": args.env.rsplit("-", 1)[-1], "policies": results}
     if args.out:

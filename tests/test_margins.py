@@ -507,6 +507,17 @@ def test_cli_margins_v1_json(capsys):
     assert margins["summary"]["closed_loop_stable"] is False
 
 
+def test_cli_margins_tell_a_controller_the_conicity(capsys):
+    """At --conicity a controller told the conicity class is designed for it, as the protocol
+    tells it its column's: lqg_rate designed for 0.1 holds the 0.1 loop at 200 km/h, where the
+    design for new wheels on worn ones grows at 3.8 1/s."""
+    code = cli_main(["margins", "--env", "Bogie/Hunting-v1", "--policy", "lqg_rate", "--speeds", "200",
+                     "--conicity", "0.1", "--json"])  # fmt: skip
+    assert code == 0
+    margins = json.loads(capsys.readouterr().out)["policies"][0]["margins"]
+    assert margins["unstable_at_kmh"] == [] and margins["gain_margin"] > 1.4
+
+
 def test_cli_margins_bad_conicity_is_named(capsys):
     assert cli_main(["margins", "--policy", "passive", "--conicity", "-1"]) == 2
     assert "--conicity" in capsys.readouterr().err
