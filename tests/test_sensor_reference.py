@@ -37,7 +37,8 @@ def estimate_error(options: dict, filter_options: dict | None = None) -> float:
     ``filter_options`` (default: the true scenario)."""
     task = _task(options)
     told_scenario = task.scenarios[0] if filter_options is None else _task(filter_options).scenarios[0]
-    controller = SensorPrivilegedController(policy_config(task.config, "sensors")).tell(told_scenario, task.config)
+    design = SensorPrivilegedController(policy_config(task.config, "sensors"), step_kmh=10.0, v_range_kmh=(50.0, 70.0))
+    controller = design.tell(told_scenario, task.config)
     controller.reset(2)
     commands = np.random.default_rng(0).uniform(-0.5, 0.5, (300, 2, controller.n_act))
     errors, states = [], []
