@@ -29,6 +29,10 @@ sample's rate ``w (target - F)`` times ``dt``. Without active constraints the fi
 LQR's, so the reference can only gain by the limits. The QP is solved by OSQP (a well-kept first-order QP solver, warm-started from the
 row's previous solution shifted by one step). Where OSQP does not report a solution, the row takes
 the privileged LQR's clipped command for that step (:attr:`fallbacks` counts them).
+
+:class:`SensorMPCReference` (``privileged_mpc_sensors``) is the reference seeing only the sensors
+through a Kalman filter designed on the told scenario; :class:`SensorMPC` (``mpc``) is that
+controller told only the conicity class: buildable, and a baseline.
 """
 
 from __future__ import annotations

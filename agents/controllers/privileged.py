@@ -29,6 +29,10 @@ delay. The actuators' limits enter the cost as soft constraints, each relative t
 The commands, their registers and the lag are replicated inside the controller from the
 commands it gave (it knows them exactly; the env's rate limit may make the true force lag
 further behind). Gains are designed every ``step_kmh`` and interpolated in speed.
+
+:class:`SensorPrivilegedController` (``privileged_sensors``) is the same told everything but
+seeing only the sensors (:class:`SensorFed`: a Kalman filter designed on the told scenario), which
+measures what the sensors cost.
 """
 
 from __future__ import annotations
