@@ -218,7 +218,7 @@ class SensorFed:
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None) -> None:
         super().reset(n_envs, rows)
-        if hasattr(self, "filter"):  # the base class resets during its own construction
+        if hasattr(self, "filter"):  # not yet built while a base class constructs
             self.filter.reset(n_envs, rows)
 
     def state_estimate(self, obs: np.ndarray) -> np.ndarray:
