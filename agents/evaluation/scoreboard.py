@@ -285,7 +285,8 @@ def conicity_figure(payload: dict, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(8, 4.6))
     rows = [r for r in payload.get("policies", []) if r.get("by_conicity")]
     ceiling = None
-    styles = iter(["-", "--", "-.", ":"] * 4)
+    styles = iter(["-", "--", "-.", ":"] * 5)
+    colors = iter(plt.get_cmap("tab10").colors + plt.get_cmap("Dark2").colors)  # more rows than tab10's 10 colours
     for r in rows:
         by = {float(lam): e for lam, e in r["by_conicity"].items() if _is_column(e)}
         lams = sorted(by)
@@ -300,7 +301,8 @@ def conicity_figure(payload: dict, path: Path) -> Path:
         if _attribute(r, "privileged", False):  # the headroom, not a baseline
             (line,) = ax.plot(lams, kmh, marker="s", ms=4, lw=1.6, ls=":", color="k", label=f"{r['policy']} ‡ (reference)")
         else:
-            (line,) = ax.plot(lams, kmh, marker="o", ms=4, lw=1.4, ls=next(styles), label=r["policy"])
+            (line,) = ax.plot(lams, kmh, marker="o", ms=4, lw=1.4, ls=next(styles), color=next(colors),
+                             label=r["policy"])
         top = [(lam, by[lam]["kmh"]) for lam in lams if _at_ceiling(by[lam])]
         if top:
             ax.plot(*zip(*top), ls="none", marker="o", ms=8, mfc="none", color=line.get_color())
