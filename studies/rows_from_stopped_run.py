@@ -57,7 +57,6 @@ def main(argv: list[str] | None = None) -> int:
     stores = sorted(p.parent for p in (out / "chunks").glob("*/study.json"))
     if not stores:
         raise SystemExit(f"{out / 'chunks'}: no stored tasks")
-    specs: list[str] = []
     for store in stores:
         definition, found = finished_units(store)
         settings = definition["settings"]
@@ -65,10 +64,8 @@ def main(argv: list[str] | None = None) -> int:
             _check_same_run(json_path, definition["env_config"]["integration"]["n_sub"], settings["seed"], settings["version"])
         for spec, part, result in found:
             rows[spec] = {**rows.get(spec, {}), **result, "policy": spec}
-            specs.append(spec)
             print(f"{spec}: {part} merged from {store.name}", file=sys.stderr)
-    order = list(rows) + [s for s in dict.fromkeys(specs) if s not in rows]
-    write_text_atomic(json_path, _v2_payload(_ordered(rows, order), definition["env_config"]["integration"]["n_sub"],
+    write_text_atomic(json_path, _v2_payload(_ordered(rows, list(rows)), definition["env_config"]["integration"]["n_sub"],
                                              settings["seed"], settings["version"]))  # fmt: skip
     render(json_path, [Path(d) for d in args.docs])
     print((out / "table.md").read_text())
