@@ -21,11 +21,8 @@ import json
 import sys
 from pathlib import Path
 
-import bogie_env
-from bogie_env.distributed import source_digest
 from bogie_env.fileio import write_text_atomic
-from bogie_agents.controllers import lqr, policies
-from bogie_agents.evaluation import evaluation_tasks, stability_protocol
+from bogie_agents.evaluation.evaluation_tasks import code_digest_v2, units_v2
 from bogie_agents.evaluation.results import _check_same_run, _ordered, _results_folder, _v2_payload
 from bogie_agents.evaluation.scoreboard import render
 
@@ -34,10 +31,10 @@ def finished_units(store: Path) -> tuple[dict, list[tuple[str, str, dict]]]:
     """The store's definition and its finished ``(spec, part, result)`` tasks, in task order
     (``evaluate_many_v2``'s: every part of the first controller, then the next)."""
     definition = json.loads((store / "study.json").read_text())["definition"]
-    code = source_digest(bogie_env, lqr, policies, stability_protocol, evaluation_tasks)
+    code = code_digest_v2()
     if definition["code"] != code:
         raise SystemExit(f"{store}: computed by other code (digest {definition['code']}, now {code}); not merged")
-    todo = [(spec, part) for spec in definition["controllers"] for part in definition["parts"]]
+    todo = units_v2(list(definition["controllers"]), tuple(definition["parts"]))
     found = []
     for index, (spec, part) in enumerate(todo):
         path = store / f"chunk_{index:06d}.json"

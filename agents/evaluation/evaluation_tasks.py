@@ -122,19 +122,29 @@ def run_units_v2(shared: tuple, chunk: list) -> list[dict]:
     return [evaluate_policy_v2(spec, env_config, unit_settings, (part,), trusted=trusted) for spec, part in chunk]
 
 
+def units_v2(specs: list[str], parts: tuple[str, ...]) -> list[list[str]]:
+    """Protocol v2's tasks, ``[spec, part]``: every part of the first controller, then the next.
+    A stored run's chunk ``i`` holds task ``i``."""
+    return [[spec, part] for spec in specs for part in parts]
+
+
+def code_digest_v2() -> str:
+    """The code that protocol v2's stored tasks depend on (part of their store key)."""
+    import bogie_env
+
+    from . import stability_protocol
+
+    return source_digest(bogie_env, controllers, policies, stability_protocol, sys.modules[__name__])
+
+
 def evaluate_many_v2(specs: list[str], env_config: dict, settings, parts: tuple[str, ...], address: str | None = None,
                      workers: int | None = None, store_dir: str | os.PathLike | None = None, progress: bool = True,
                      trusted: bool = False) -> list[dict]:  # fmt: skip
     """Protocol v2 for every controller as Ray tasks, one per (controller, part); results in
     ``specs`` order, each equal to ``evaluate_policy_v2`` with all ``parts`` (parts are independent)."""
-    from . import stability_protocol
-
-    todo = [[spec, part] for spec in specs for part in parts]
-    import bogie_env
-
+    todo = units_v2(specs, parts)
     key = {"env_config": env_config, "settings": dataclasses.asdict(settings), "parts": list(parts),
-           "controllers": {spec: _fingerprint(spec) for spec in specs},
-           "code": source_digest(bogie_env, controllers, policies, stability_protocol, sys.modules[__name__])}  # fmt: skip
+           "controllers": {spec: _fingerprint(spec) for spec in specs}, "code": code_digest_v2()}  # fmt: skip
     store = ChunkStore(store_dir, key) if store_dir is not None else None
     done = map_chunks(run_units_v2, [[unit] for unit in todo], shared=(env_config, settings, trusted), backend="ray",
                       address=address, workers=workers, store=store, progress=progress, desc="evaluation tasks",
