@@ -74,6 +74,35 @@ def test_teacher_bank_labels_as_the_privileged_controller_acts(bank_and_teacher)
     assert np.abs(labels).max() > 1e-3  # the check saw real commands
 
 
+def test_mpc_teacher_bank_labels_as_the_mpc_reference_acts(bank_and_teacher):
+    """The same for ``teacher: privileged_mpc``: row i's label is the command of an MPCReference
+    told row i's scenario (its own QPs; the loop states and warm starts the bank's rows')."""
+    from bogie_agents.controllers.mpc import MPCReference
+    from bogie_agents.training.distill import MPCTeacherBank
+
+    env_cfg, bank, _ = bank_and_teacher
+    teacher = MPCTeacherBank(env_cfg, bank)
+    state_cfg = merge_config(env_cfg, {"observation": {"type": "state"}, "sensors": {"enabled": False}})
+    controllers = [MPCReference(env_cfg).tell(s, env_cfg) for s in bank]
+    for c in controllers:
+        c.reset(1)
+    teacher.reset(2, np.arange(2), np.array([1, 0]))  # row i runs scenario 1 - i: the rows' designs are looked up
+    task = HuntingTask(2, state_cfg)
+    task.seed_rows(np.arange(2), [1, 2])
+    for i, s in enumerate(bank[::-1]):
+        task.reset_rows(np.array([i]), scenario_options(s))
+    active = 0
+    for _ in range(40):
+        labels = teacher.command(state_observation(task))
+        acts = np.concatenate([c.act(task.obs[i : i + 1]) for i, c in enumerate(controllers[::-1])])
+        np.testing.assert_array_equal(labels.astype(np.float32), acts)
+        active += int(np.any(np.abs(labels) >= 1.0 - 1e-9))
+        task.step(labels)
+        teacher.advance(labels)
+    assert np.abs(labels).max() > 1e-3 and active > 0  # real commands, and the force limit was met
+    assert teacher.loop.fallbacks == 0
+
+
 def test_training_inputs_are_what_the_saved_student_sees(tmp_path, bank_and_teacher):
     """The student driving the rollouts (beta 0) and the same student saved, loaded and fed the
     rollout's observations see the same inputs and send the same commands: no train/evaluation skew."""
@@ -119,10 +148,21 @@ def test_student_files_are_checked(tmp_path):
 @pytest.mark.parametrize("changes, match", [({"n_envs": 0}, "'n_envs' = 0"), ({"dagger": {"beta0": 2}}, "dagger.beta0"),
                                             ({"dagger": {"betta": 1}}, "dagger.betta"), ({"env_id": "Bogie/Nope-v1"}, "env_id"),
                                             ({"student": {"hidden": []}}, "student.hidden"), ({"dagger": {"beta0": True}}, "dagger.beta0"),
-                                            ({"fit": {"learning_rate": -1}}, "fit.learning_rate")])  # fmt: skip
+                                            ({"fit": {"learning_rate": -1}}, "fit.learning_rate"),
+                                            ({"teacher": "mpc"}, "'teacher' = 'mpc'; allowed: one of privileged, privileged_mpc")])  # fmt: skip
 def test_bad_config_names_the_key(changes, match):
     with pytest.raises(ConfigError, match=match):
         load_config(None, changes)
+
+
+def test_shipped_distill_configs_load():
+    """Every configs/agents/distill*.yaml passes the config's checks (an unknown key names itself)."""
+    from pathlib import Path
+
+    paths = sorted((Path(__file__).resolve().parents[1] / "configs" / "agents").glob("distill*.yaml"))
+    assert len(paths) >= 4
+    teachers = {load_config(p)["teacher"] for p in paths}
+    assert teachers == {"privileged", "privileged_mpc"}
 
 
 @pytest.mark.slow  # 10-30 s: torch's import and fit

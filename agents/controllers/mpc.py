@@ -41,7 +41,7 @@ import contextlib
 import io
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy import sparse
@@ -195,10 +195,13 @@ class MPCReference(PrivilegedController):
         raise NotImplementedError("MPCReference.command: a linear law with given gains is not this controller's; "
                                   "use planned_command(x_lat, speed_kmh)")
 
-    def planned_command(self, x_lat: np.ndarray, speed_kmh: np.ndarray) -> np.ndarray:
+    def planned_command(self, x_lat: np.ndarray, speed_kmh: np.ndarray,
+                        designs: Sequence["MPCReference"] | None = None) -> np.ndarray:  # fmt: skip
         """The first command of each row's plan for lateral states ``x_lat`` (n, 16) at
         ``speed_kmh`` (n,), the loop states as they stand (nothing advances: :meth:`advance` does);
-        a row whose QP OSQP does not solve takes the privileged LQR's clipped command."""
+        a row whose QP OSQP does not solve takes the privileged LQR's clipped command. ``designs``
+        (one per row, default this one) gives each row's QPs: a bank of scenarios whose rows share
+        this controller's loop states (``bogie_agents.training.distill.MPCTeacherBank``)."""
         z = np.concatenate([x_lat, self.force_state, self.registers()], axis=1)
         if self._previous.shape[0] != z.shape[0]:
             self._previous = np.zeros((z.shape[0], self.horizon * self.n_act))
@@ -206,13 +209,15 @@ class MPCReference(PrivilegedController):
         nearest = np.clip(np.rint((speed_kmh - self.speeds_kmh[0]) / grid), 0, len(self.speeds_kmh) - 1).astype(int)
         out = np.empty((z.shape[0], self.n_act))
         with quiet_osqp():
-            self._solve_rows(z, nearest, out)
+            self._solve_rows(z, nearest, out, designs)
         return out
 
-    def _solve_rows(self, z: np.ndarray, nearest: np.ndarray, out: np.ndarray) -> None:
+    def _solve_rows(self, z: np.ndarray, nearest: np.ndarray, out: np.ndarray,
+                    designs: Sequence["MPCReference"] | None = None) -> None:  # fmt: skip
         """Each row's QP at its design speed ``nearest``; the first commands into ``out``."""
         for i, k in enumerate(nearest.tolist()):
-            qp, solver = self.qp(k), self.solver(k)
+            design = self if designs is None else designs[i]
+            qp, solver = design.qp(k), design.solver(k)
             g = qp.offset @ z[i]
             solver.update(q=qp.linear @ z[i], l=qp.lower - g, u=qp.upper - g)
             solver.warm_start(x=np.concatenate([self._previous[i, self.n_act :], self._previous[i, -self.n_act :]]))
@@ -223,7 +228,7 @@ class MPCReference(PrivilegedController):
             else:
                 self.fallbacks += 1
                 self._previous[i] = 0.0
-                out[i] = np.clip(-self.points[k].gain @ z[i], -1.0, 1.0)
+                out[i] = np.clip(-design.points[k].gain @ z[i], -1.0, 1.0)
 
 
 class SensorMPCReference(SensorFed, MPCReference):

@@ -6,6 +6,11 @@ student that sees what a buildable controller sees (the v1 sensors and its own p
 :class:`bogie_agents.controllers.distilled.DistilledPolicy`) learns its commands by DAgger
 (Ross, Gordon & Bagnell, AISTATS 2011), the teacher-student route of legged locomotion:
 
+The teacher is ``privileged`` (default) or, with ``teacher: privileged_mpc``, the MPC reference
+with the force and rate limits as hard constraints
+(:class:`bogie_agents.controllers.mpc.MPCReference`, :class:`MPCTeacherBank`: one QP per row
+and step, about 1 ms in Python).
+
 1. **Scenario bank.** ``bank.size`` scenarios drawn from the env's own randomisation
    (``Bogie/Hunting-v1``: conicity 0.025-0.3, stiffnesses, creep, dampers, axle load, actuator
    gains, failed actuators; ``bank.randomize`` may widen it; stuck actuators are left out, the
@@ -62,6 +67,9 @@ def default_config() -> dict[str, Any]:
         # randomize: entries merged into the env's randomisation for the bank's draws only (e.g. wider
         # degradation ranges or more failed actuators than the env's episodes draw)
         "bank": {"size": 96, "randomize": {}},
+        # the reference that labels: "privileged" (LQR, the force-rate limit as a soft cost) or
+        # "privileged_mpc" (the MPC with the force and rate limits as hard constraints, one QP per row and step)
+        "teacher": "privileged",
         # mirror: the student is odd in every input but the speed (StudentNetwork); false: a plain MLP.
         # residual: null, or {baseline: a classical controller, scale: (0, 1]}: the student is a
         # correction on that baseline from its washed-out design signals (distilled.ResidualFrames)
@@ -100,6 +108,8 @@ def load_config(path: str | Path | None, overrides: Mapping[str, Any] | None = N
     for where, value in (("fit.learning_rate", cfg["fit"]["learning_rate"]), ("max_wall_time_s", cfg["max_wall_time_s"])):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
             raise ConfigError(f"distill config {where!r} = {value!r}; allowed: a finite number > 0")
+    if cfg["teacher"] not in TEACHERS:
+        raise ConfigError(f"distill config 'teacher' = {cfg['teacher']!r}; allowed: one of {', '.join(TEACHERS)}")
     hidden = cfg["student"]["hidden"]
     if not isinstance(hidden, list) or not hidden or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in hidden):
         raise ConfigError(f"distill config 'student.hidden' = {hidden!r}; allowed: a non-empty list of layer widths >= 1")
@@ -232,6 +242,36 @@ class TeacherBank:
 
     def advance(self, sent: np.ndarray) -> None:
         self.loop.advance(sent, self.channel_gains[self.row_scenario])
+
+
+class MPCTeacherBank(TeacherBank):
+    """``privileged_mpc`` designed for every bank scenario; each row's QP is its scenario's.
+
+    The first design holds every row's loop states (lag, command registers, the plans that warm-start
+    OSQP); a row's QPs, rate rows and fallback gains are its scenario's design's."""
+
+    def __init__(self, env_cfg: dict, bank: list[Scenario], progress=None) -> None:
+        from ..controllers.mpc import MPCReference
+
+        self.designs: list[MPCReference] = []
+        for k, s in enumerate(bank):
+            self.designs.append(MPCReference(env_cfg).tell(s, env_cfg) if k == 0 else self.designs[0].tell(s, env_cfg))
+            if progress:
+                progress(k + 1, len(bank))
+        self.speeds_kmh = self.designs[0].speeds_kmh
+        self.channel_gains = np.stack([d.channel_gain for d in self.designs])  # (M, n_act)
+        self.loop = self.designs[0]
+        self.row_scenario = np.zeros(0, dtype=np.int64)
+
+    def command(self, state_obs: np.ndarray) -> np.ndarray:
+        """Each row's MPC command for its full-state observation (:func:`state_observation`)."""
+        speed = np.asarray(self.loop.speed_kmh(state_obs), dtype=float).reshape(-1)
+        designs = [self.designs[m] for m in self.row_scenario.tolist()]
+        return self.loop.planned_command(self.loop.state_estimate(state_obs), speed, designs)
+
+
+#: ``teacher`` of the distill config: the reference bank that labels
+TEACHERS = {"privileged": TeacherBank, "privileged_mpc": MPCTeacherBank}
 
 
 def state_observation(task: HuntingTask) -> np.ndarray:
@@ -403,7 +443,7 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
             print(f"[distill {time.time() - t0:7.1f} s] {text}", flush=True)
 
     bank = draw_bank(env_cfg, cfg["bank"]["size"], seed * 100_000 + 50_000, cfg["bank"]["randomize"])
-    teacher = TeacherBank(env_cfg, bank, (lambda k, m: say(f"designed {k}/{m} scenarios") if k % 16 == 0 or k == m else None))
+    teacher = TEACHERS[cfg["teacher"]](env_cfg, bank, (lambda k, m: say(f"designed {k}/{m} scenarios") if k % 16 == 0 or k == m else None))
     residual = cfg["student"]["residual"]
     roll = Rollouts(bank_config(env_cfg, cfg["bank"]["randomize"]), cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed,
                     cfg["episode_steps"], residual)  # fmt: skip
