@@ -52,6 +52,7 @@ from bogie_env.params import ConfigError
 
 from ..controllers.distilled import FrameHistory, ResidualFrames, StudentNetwork, save_student
 from ..controllers.lqr import interpolation_weights
+from ..controllers.mpc import MPCReference
 from ..controllers.privileged import PrivilegedController
 
 def default_config() -> dict[str, Any]:
@@ -206,19 +207,21 @@ def draw_bank(env_cfg: dict, size: int, seed: int, randomize: Mapping[str, Any] 
 class TeacherBank:
     """The reference designed for every bank scenario; each row labelled by its scenario's design.
 
-    One :class:`PrivilegedController` holds the rows' loop states (lag, command registers); the
-    gains and channel gains are the row's scenario's."""
+    The first design (a :attr:`reference`) holds the rows' loop states (lag, command registers);
+    the gains and channel gains are the row's scenario's."""
+
+    reference: type[PrivilegedController] = PrivilegedController
 
     def __init__(self, env_cfg: dict, bank: list[Scenario], progress=None) -> None:
-        designs = []
+        self.designs: list[PrivilegedController] = []
         for k, s in enumerate(bank):
-            designs.append(PrivilegedController(env_cfg).tell(s, env_cfg) if k == 0 else designs[0].tell(s, env_cfg))
+            self.designs.append(self.reference(env_cfg).tell(s, env_cfg) if k == 0 else self.designs[0].tell(s, env_cfg))
             if progress:
                 progress(k + 1, len(bank))
-        self.speeds_kmh = designs[0].speeds_kmh
-        self.gains = np.stack([d.gains for d in designs])  # (M, S, n_act, n_z)
-        self.channel_gains = np.stack([d.channel_gain for d in designs])  # (M, n_act)
-        self.loop = designs[0]
+        self.speeds_kmh = self.designs[0].speeds_kmh
+        self.gains = np.stack([d.gains for d in self.designs])  # (M, S, n_act, n_z)
+        self.channel_gains = np.stack([d.channel_gain for d in self.designs])  # (M, n_act)
+        self.loop = self.designs[0]
         self.row_scenario = np.zeros(0, dtype=np.int64)
 
     def reset(self, n_envs: int, rows: np.ndarray | None = None, scenarios: np.ndarray | None = None) -> None:
@@ -250,18 +253,7 @@ class MPCTeacherBank(TeacherBank):
     The first design holds every row's loop states (lag, command registers, the plans that warm-start
     OSQP); a row's QPs, rate rows and fallback gains are its scenario's design's."""
 
-    def __init__(self, env_cfg: dict, bank: list[Scenario], progress=None) -> None:
-        from ..controllers.mpc import MPCReference
-
-        self.designs: list[MPCReference] = []
-        for k, s in enumerate(bank):
-            self.designs.append(MPCReference(env_cfg).tell(s, env_cfg) if k == 0 else self.designs[0].tell(s, env_cfg))
-            if progress:
-                progress(k + 1, len(bank))
-        self.speeds_kmh = self.designs[0].speeds_kmh
-        self.channel_gains = np.stack([d.channel_gain for d in self.designs])  # (M, n_act)
-        self.loop = self.designs[0]
-        self.row_scenario = np.zeros(0, dtype=np.int64)
+    reference = MPCReference
 
     def command(self, state_obs: np.ndarray) -> np.ndarray:
         """Each row's MPC command for its full-state observation (:func:`state_observation`)."""
