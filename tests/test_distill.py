@@ -397,8 +397,9 @@ def test_residual_configs_and_files_are_checked(tmp_path, bank_and_teacher):
     with pytest.raises(ConfigError, match="'student.mirror' = false"):
         load_config(None, {"student": {"residual": {"baseline": "robust_steering"}, "mirror": False}})
     assert load_config(None, {"student": {"residual": {"baseline": "lqg"}}})["student"]["residual"] == {"baseline": "lqg", "scale": 1.0}
-    with pytest.raises(ConfigError, match="'fit.loop_penalty' is not allowed without 'student.residual'"):
-        load_config(None, {"fit": {"loop_penalty": {}}})
+    with pytest.raises(ConfigError, match="'fit.loop_penalty' is not allowed with 'student.mirror' = false"):
+        load_config(None, {"student": {"mirror": False}, "fit": {"loop_penalty": {}}})
+    assert load_config(None, {"fit": {"loop_penalty": {}}})["fit"]["loop_penalty"]["gain"] == 2.0  # a plain mirrored student
     for bad, match in (({"gain": 0.5}, "loop_penalty.gain"), ({"points": [[300.0]]}, "loop_penalty.points"), ({"wieght": 1}, "keys")):
         with pytest.raises(ConfigError, match=match):
             load_config(None, {"student": {"residual": {"baseline": "lqg"}}, "fit": {"loop_penalty": bad}})
@@ -429,7 +430,7 @@ def test_the_loop_penalty_is_the_margins_closed_loop(bank_and_teacher):
     net = policy.network
     linears = [type("L", (), {"weight": torch.from_numpy(w.astype(np.float64)), "bias": torch.from_numpy(b.astype(np.float64))})
                for w, b in zip(net.weights, net.biases)]  # fmt: skip
-    j = frames.scale * penalty.jacobian(linears, torch.from_numpy(net.mean), torch.from_numpy(net.std), nominal.speed_input).numpy()
+    j = frames.scale * penalty.jacobian(linears, torch.from_numpy(net.mean), torch.from_numpy(net.std), torch.from_numpy(nominal.x0)).numpy()
     for terms, lp in ((nominal, loop), (delayed, loop.with_extra_delay(1))):
         for v, gains in enumerate([np.ones(4)] + [np.where(np.arange(4) == k, 2.0, 1.0) for k in range(4)]):
             if v >= len(terms.variants):
@@ -441,6 +442,48 @@ def test_the_loop_penalty_is_the_margins_closed_loop(bank_and_teacher):
     true_growth.append(loop.with_extra_delay(1).growth_rate())
     assert np.all(bounds >= np.array(true_growth) - 1e-9)
     assert np.all(bounds <= np.array(true_growth) + 0.5)  # balanced, 41 s horizon: the transient's share is small
+
+
+def test_the_loop_penalty_of_a_plain_student_is_the_margins_closed_loop(bank_and_teacher):
+    """For a plain mirrored student (frames of observation and last command) the penalty's affine
+    loop equals the closed loop ``bogie margins`` builds from the student's own linear model
+    (:func:`student_controller_model`, its operating command found by root), nominal and with a
+    loop gain; its exact growth rates are the margins' loops'. Without mirror signs it is refused."""
+    import torch
+
+    from bogie_agents.design.margins import linear_loop, plant_bogie
+    from bogie_agents.training.distill import mirror_signs
+    from bogie_agents.training.loop_penalty import LoopPenalty, check_penalty_config
+
+    env_cfg = bank_and_teacher[0]
+    task = HuntingTask(1, env_cfg)
+    history, n_y, n_u = 3, task.observation_dim, task.action_dim
+    mirror = mirror_signs(task, history)
+    rng = np.random.default_rng(11)
+    n_in = history * (n_y + n_u)
+    network = StudentNetwork([rng.normal(0, 0.3, (16, n_in)), rng.normal(0, 0.3, (n_u, 16))], [rng.normal(0, 0.1, 16), rng.normal(0, 0.1, n_u)],
+                             np.where(mirror < 0, 0.0, 0.2), np.where(mirror < 0, 0.8, 0.5), mirror)  # fmt: skip
+    policy = DistilledPolicy(network, history, n_y, n_u)
+    settings = check_penalty_config({"points": [[350.0, 0.1]], "stable_points": [], "gain": 2.0, "extra_delay_steps": 1, "horizon_log2": 12})
+    penalty = LoopPenalty(policy.frames, env_cfg, settings, mirror=mirror)
+    nominal, delayed = penalty.terms
+    loop = linear_loop(policy, env_cfg, 350.0, plant_bogie(env_cfg, 0.1))
+    np.testing.assert_allclose(loop.u_eq, 0.0, atol=1e-12)  # odd: no command at rest
+    linears = [type("L", (), {"weight": torch.from_numpy(w.astype(np.float64)), "bias": torch.from_numpy(b.astype(np.float64))})
+               for w, b in zip(network.weights, network.biases)]  # fmt: skip
+    j = penalty.jacobian(linears, torch.from_numpy(network.mean), torch.from_numpy(network.std), torch.from_numpy(nominal.x0)).numpy()
+    variants = [np.ones(n_u)] + [np.where(np.arange(n_u) == k, 2.0, 1.0) for k in range(n_u)]
+    for terms, lp in ((nominal, loop), (delayed, loop.with_extra_delay(1))):
+        for v, gains in enumerate(variants[: len(terms.variants)]):
+            t = terms.similarity
+            a = (terms.a0[v] + terms.b[v] @ j @ terms.phi) * t[:, None] / t[None, :]
+            expected = lp.closed_loop_matrix(gains)  # the margins hold the frames in float32: 1e-6
+            np.testing.assert_allclose(a, expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
+    true_growth = [loop.growth_rate(g) for g in variants] + [loop.with_extra_delay(1).growth_rate()]
+    np.testing.assert_allclose(penalty.growth_rates_of(network), true_growth, rtol=1e-6, atol=1e-6)
+    assert np.all(penalty.growth_bounds_of(network) >= np.array(true_growth) - 1e-9)
+    with pytest.raises(ValueError, match="mirror signs"):
+        LoopPenalty(policy.frames, env_cfg, settings)
 
 
 def test_the_fault_points_are_the_margins_loops_with_half_the_creep_and_a_failed_channel(bank_and_teacher):
@@ -465,7 +508,7 @@ def test_the_fault_points_are_the_margins_loops_with_half_the_creep_and_a_failed
     net = policy.network
     linears = [type("L", (), {"weight": torch.from_numpy(w.astype(np.float64)), "bias": torch.from_numpy(b.astype(np.float64))})
                for w, b in zip(net.weights, net.biases)]  # fmt: skip
-    j = frames.scale * penalty.jacobian(linears, torch.from_numpy(net.mean), torch.from_numpy(net.std), failed.speed_input).numpy()
+    j = frames.scale * penalty.jacobian(linears, torch.from_numpy(net.mean), torch.from_numpy(net.std), torch.from_numpy(failed.x0)).numpy()
     cases = [(failed, v, linear_loop(policy, env_cfg, 330.0, nominal_model), np.where(np.arange(4) == v, 0.0, 1.0)) for v in range(4)]
     cases.append((creep, 0, linear_loop(policy, env_cfg, 330.0, creep_model), np.ones(4)))
     for terms, v, lp, gains in cases:
@@ -506,7 +549,7 @@ def test_fault_degraded_adds_the_protocols_degraded_plants_by_name(bank_and_teac
     net = policy.network
     linears = [type("L", (), {"weight": torch.from_numpy(w.astype(np.float64)), "bias": torch.from_numpy(b.astype(np.float64))})
                for w, b in zip(net.weights, net.biases)]  # fmt: skip
-    j = frames.scale * penalty.jacobian(linears, torch.from_numpy(net.mean), torch.from_numpy(net.std), kpx.speed_input).numpy()
+    j = frames.scale * penalty.jacobian(linears, torch.from_numpy(net.mean), torch.from_numpy(net.std), torch.from_numpy(kpx.x0)).numpy()
     t = kpx.similarity
     a = (kpx.a0[0] + kpx.b[0] @ j @ kpx.phi) * t[:, None] / t[None, :]
     np.testing.assert_allclose(a, lp.closed_loop_matrix(), rtol=1e-9, atol=1e-9 * np.abs(a).max())

@@ -496,6 +496,7 @@ class LinearLoop:
     ctrl: ControllerModel
     speed_kmh: float
     u_eq: np.ndarray
+    y_eq: np.ndarray | None = None  # the observation at the operating point
 
     @property
     def dt(self) -> float:
@@ -613,7 +614,7 @@ def linear_loop(policy, env_config: dict, speed_kmh: float, model: BogieModel | 
     if ctrl.d.shape[0] != plant.n_act:
         raise ConfigError(f"margins: the policy commands {ctrl.d.shape[0]} channels, the env has {plant.n_act} active")
     policy.reset(1)
-    return LinearLoop(plant, ctrl, speed_kmh, u_eq)
+    return LinearLoop(plant, ctrl, speed_kmh, u_eq, y0)
 
 
 # =============================================================================================

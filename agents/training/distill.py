@@ -77,7 +77,7 @@ def default_config() -> dict[str, Any]:
         "student": {"history": 16, "hidden": [256, 256], "mirror": True, "residual": None},
         # keep_every: keep every k-th step's sample (neighbouring steps are nearly the same sample)
         "dagger": {"iterations": 6, "steps": 3000, "beta0": 1.0, "beta_decay": 0.5, "keep_every": 1},
-        # loop_penalty: null, or a penalty on a residual student's linearised loops (loop_penalty.DEFAULTS)
+        # loop_penalty: null, or a penalty on a mirrored student's linearised loops (loop_penalty.DEFAULTS)
         "fit": {"epochs": 3, "batch_size": 2048, "learning_rate": 1.0e-3, "torch_threads": 2, "loop_penalty": None},
         "max_wall_time_s": 3600,
     }
@@ -135,9 +135,9 @@ def load_config(path: str | Path | None, overrides: Mapping[str, Any] | None = N
     from .loop_penalty import check_penalty_config
 
     cfg["fit"]["loop_penalty"] = check_penalty_config(cfg["fit"]["loop_penalty"])
-    if cfg["fit"]["loop_penalty"] is not None and residual is None:
-        raise ConfigError("distill config 'fit.loop_penalty' is not allowed without 'student.residual'; allowed: null "
-                          "(the penalty's affine loop is a correction's on a baseline)")  # fmt: skip
+    if cfg["fit"]["loop_penalty"] is not None and not cfg["student"]["mirror"]:
+        raise ConfigError("distill config 'fit.loop_penalty' is not allowed with 'student.mirror' = false; allowed: null "
+                          "(the penalty linearises a mirror-odd student about rest, where its command is zero)")  # fmt: skip
     return cfg
 
 
@@ -445,7 +445,8 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
     if cfg["fit"]["loop_penalty"] is not None:
         from .loop_penalty import LoopPenalty
 
-        penalty = LoopPenalty(roll.frames, env_cfg, cfg["fit"]["loop_penalty"], lambda k, m: say(f"linearised loop {k}/{m}"))
+        penalty = LoopPenalty(roll.frames, env_cfg, cfg["fit"]["loop_penalty"], lambda k, m: say(f"linearised loop {k}/{m}"),
+                              mirror_signs(roll.task, cfg["student"]["history"], roll.frames))  # fmt: skip
     if residual is not None:  # the baseline is designed for the env config the episodes ran
         meta["residual"] = {**residual, "env_config": env_cfg}
     xs: list[np.ndarray] = []

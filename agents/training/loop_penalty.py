@@ -6,18 +6,25 @@ loop's slower modes, as the distilled students of docs/studies/distillation.md d
 growing at 2-4 1/s on new wheels). The margins are a property of the linear loop, so the fit
 can be told them.
 
-For a student on a classical baseline (:class:`bogie_agents.controllers.distilled.ResidualFrames`)
-linearised at rest on straight track, the correction's features are zero there and its
-Jacobian ``J`` (n_act x history*frame) enters the closed loop affinely:
+For a student linearised at rest on straight track, its Jacobian ``J`` (n_act x history*frame)
+enters the closed loop affinely:
 
     A(J) = A0 + B (scale J) Phi
 
-``A0``: the loop with the correction cut (plant, baseline, feature filters, frame register),
-balanced by a diagonal similarity (``scipy.linalg.matrix_balance``: same eigenvalues);
-``B``: the commands' input to the plant, times the loop gains of a variant; ``Phi``: the stacked
-frames (oldest first) in terms of the loop's state. ``A0``, ``B`` and ``Phi`` are built once per
-operating point by the margins' own tools (:func:`bogie_agents.design.margins.linear_loop`);
-``J`` comes from the network being fitted, by torch, so the penalty has gradients.
+``A0``: the loop with the network cut, balanced by a diagonal similarity
+(``scipy.linalg.matrix_balance``: same eigenvalues); ``B``: where the commands enter the loop,
+times the loop gains of a variant; ``Phi``: the stacked frames (oldest first) in terms of the
+loop's state. For a student on a classical baseline
+(:class:`bogie_agents.controllers.distilled.ResidualFrames`) the loop holds the plant, the
+baseline, the feature filters and the frame register, the frames are ``[features, speed]``, and
+``scale`` is the correction's authority. For a plain mirrored student
+(:class:`bogie_agents.controllers.distilled.FrameHistory`) the loop holds the plant, the frame
+register and the last command (which enters the next frame), the frames are ``[observation,
+last command]``, and ``scale`` is 1. Both are mirror-odd networks, so at rest (every mirrored
+input zero) the command is zero and the operating point is the passive bogie's. ``A0``, ``B`` and
+``Phi`` are built once per operating point by the margins' own tools
+(:func:`bogie_agents.design.margins.linear_loop`); ``J`` comes from the network being fitted, by
+torch, so the penalty has gradients.
 
 The penalty bounds each loop's growth rate from above by Gelfand's formula,
 ``sigma_K = ln ||A^K||_F / (K dt) >= ln rho(A) / dt`` (``K`` a power of two, by repeated
@@ -41,7 +48,7 @@ import scipy.linalg
 
 from bogie_env.params import ConfigError
 
-from ..controllers.distilled import DistilledPolicy, ResidualFrames, StudentNetwork, feature_frame_model
+from ..controllers.distilled import DistilledPolicy, FrameHistory, ResidualFrames, StudentNetwork, feature_frame_model
 from ..design.margins import linear_loop, plant_bogie
 
 #: The penalty's settings (``fit.loop_penalty`` in a distill config).
@@ -112,11 +119,28 @@ class LoopTerms:
     a0: np.ndarray  # (variants, n, n)
     b: np.ndarray  # (variants, n, n_act)
     phi: np.ndarray  # (history * frame, n)
-    speed_input: float  # the speed entry of the frame at this point (observation units)
+    x0: np.ndarray  # (history * frame,) the network's input at this point
     dt: float
     variants: tuple[str, ...]
     similarity: np.ndarray  # (n,) the balancing: these matrices are the loop's in states x / similarity
     kind: str = "margins"  # the settings' list of the point: margins, stable or faults
+
+
+def plain_frame_map(frames: FrameHistory, plant_c: np.ndarray) -> np.ndarray:
+    """``Phi`` of a plain student: the stacked frames ``[observation, last command]`` (oldest
+    first) as a linear map of the loop state ``[plant; frame register (newest first); last command]``
+    (:func:`bogie_agents.controllers.distilled.student_controller_model`'s states)."""
+    width, history, n_y = frames.frame_dim, frames.history, frames.obs_dim
+    n_p, n_reg = plant_c.shape[1], (history - 1) * width
+    phi = np.zeros((history * width, n_p + n_reg + frames.action_dim))
+    newest = (history - 1) * width
+    phi[newest : newest + n_y, :n_p] = plant_c
+    phi[newest + n_y : newest + width, n_p + n_reg :] = np.eye(frames.action_dim)
+    for j in range(1, history):  # frame history-1-j is register slot j-1
+        rows = slice((history - 1 - j) * width, (history - j) * width)
+        start = n_p + (j - 1) * width
+        phi[rows, start : start + width] = np.eye(width)
+    return phi
 
 
 def frame_map(frames: ResidualFrames, n_obs: int, speed_kmh: float, plant_c: np.ndarray, n_base: int) -> np.ndarray:
@@ -137,15 +161,16 @@ def frame_map(frames: ResidualFrames, n_obs: int, speed_kmh: float, plant_c: np.
     return phi
 
 
-def _probe(frames: ResidualFrames) -> DistilledPolicy:
-    """The student with a zero network: its linear model is the loop without the correction."""
+def _probe(frames: ResidualFrames | FrameHistory) -> DistilledPolicy:
+    """The student with a zero network: its linear model is the loop without the network."""
     n_in = frames.history * frames.frame_dim
-    return DistilledPolicy(StudentNetwork([np.zeros((frames.action_dim, n_in))], [np.zeros(frames.action_dim)], np.zeros(n_in),
-                                          np.ones(n_in), np.tile(frames.mirror_frame(), frames.history)),
-                           frames.history, frames.obs_dim, frames.action_dim, frames=frames)  # fmt: skip
+    network = StudentNetwork([np.zeros((frames.action_dim, n_in))], [np.zeros(frames.action_dim)], np.zeros(n_in), np.ones(n_in))
+    if isinstance(frames, FrameHistory):
+        return DistilledPolicy(network, frames.history, frames.obs_dim, frames.action_dim)
+    return DistilledPolicy(network, frames.history, frames.obs_dim, frames.action_dim, frames=frames)
 
 
-def loop_terms(frames: ResidualFrames, env_config: dict, speed_kmh: float, conicity: float, gain: float,
+def loop_terms(frames: ResidualFrames | FrameHistory, env_config: dict, speed_kmh: float, conicity: float, gain: float,
                extra_delay_steps: int, faults: bool = False, degraded: tuple[str, ...] = ("creep-50%",)) -> list[LoopTerms]:  # fmt: skip
     """The affine closed loops at one operating point: the nominal loop and each channel's
     command times ``gain`` on one plant, and ``extra_delay_steps`` more delay in every channel;
@@ -154,8 +179,15 @@ def loop_terms(frames: ResidualFrames, env_config: dict, speed_kmh: float, conic
     probe = _probe(frames)
     loop = linear_loop(probe, env_config, speed_kmh, plant_bogie(env_config, conicity))
     n_act, n_obs = loop.plant.n_act, loop.plant.c.shape[0]
-    n_base = loop.ctrl.n_states - feature_frame_model(frames, n_obs, speed_kmh).n_states - (frames.history - 1) * frames.frame_dim
-    speed_input = _speed_input(speed_kmh)
+    plain = isinstance(frames, FrameHistory)
+    if plain:  # the loop's command enters the plant and the last-command state (the next frame's)
+        x0 = np.tile(np.concatenate([loop.y_eq, np.zeros(n_act)]), frames.history)
+        into_ctrl = np.vstack([np.zeros((loop.ctrl.n_states - n_act, n_act)), np.eye(n_act)])
+    else:
+        n_base = loop.ctrl.n_states - feature_frame_model(frames, n_obs, speed_kmh).n_states - (frames.history - 1) * frames.frame_dim
+        mirror = np.tile(frames.mirror_frame(), frames.history)
+        x0 = np.where(mirror > 0, _speed_input(speed_kmh), 0.0)  # the features are zero at rest
+        into_ctrl = np.zeros((loop.ctrl.n_states, n_act))
     if faults:
         from bogie_env.envs.config import bogie_params
         from bogie_env.envs.scenario import Scenario, scenario_model
@@ -175,13 +207,13 @@ def loop_terms(frames: ResidualFrames, env_config: dict, speed_kmh: float, conic
     out = []
     for lp, variants in groups:
         a0 = np.stack([lp.closed_loop_matrix(g) for _, g in variants])
-        b = np.stack([np.vstack([lp.plant.b * g[None, :], np.zeros((lp.ctrl.n_states, n_act))]) for _, g in variants])
-        phi = frame_map(frames, n_obs, speed_kmh, lp.plant.c, n_base)
+        b = np.stack([np.vstack([lp.plant.b * g[None, :], into_ctrl]) for _, g in variants])
+        phi = plain_frame_map(frames, lp.plant.c) if plain else frame_map(frames, n_obs, speed_kmh, lp.plant.c, n_base)
         # a diagonal similarity that balances the nominal loop (the states are in mixed SI units):
         # eigenvalues unchanged, the transient of ||A^K|| and with it the bound's excess far smaller
         _, (t, _) = scipy.linalg.matrix_balance(a0[0], permute=False, separate=True)
         a0, b, phi = a0 * t[None, None, :] / t[None, :, None], b / t[None, :, None], phi * t[None, :]
-        out.append(LoopTerms(float(speed_kmh), float(conicity), a0, b, phi, speed_input, lp.dt, tuple(v[0] for v in variants), t))
+        out.append(LoopTerms(float(speed_kmh), float(conicity), a0, b, phi, x0, lp.dt, tuple(v[0] for v in variants), t))
     return out
 
 
@@ -195,11 +227,19 @@ def _speed_input(speed_kmh: float) -> float:
 class LoopPenalty:
     """The penalty of the module docstring for one student shape, in torch (float64)."""
 
-    def __init__(self, frames: ResidualFrames, env_config: dict, settings: dict[str, Any], progress=None) -> None:
+    def __init__(self, frames: ResidualFrames | FrameHistory, env_config: dict, settings: dict[str, Any], progress=None,
+                 mirror: np.ndarray | None = None) -> None:  # fmt: skip
+        """``mirror``: the student's input signs under the mirror (``distill.mirror_signs``); a
+        residual student's are its frames' own, a plain student must be given them."""
         import torch
 
+        if mirror is None:
+            if isinstance(frames, FrameHistory):
+                raise ValueError("LoopPenalty: a plain student's loop penalty needs its mirror signs (a mirrored student)")
+            mirror = np.tile(frames.mirror_frame(), frames.history)
+        mirror = np.asarray(mirror, dtype=np.float64)
         self.settings = settings
-        self.frames = frames  # the correction's authority per term: frames.scale_at(term speed)
+        self.frames = frames
         self.terms = []
         points = [(p, "margins") for p in settings["points"]] + [(p, "stable") for p in settings["stable_points"]] + \
                  [(p, "faults") for p in settings["fault_points"]]  # fmt: skip
@@ -210,19 +250,25 @@ class LoopPenalty:
                 settings["extra_delay_steps"] if margins else 0, faults=kind == "faults", degraded=tuple(settings["fault_degraded"]))]  # fmt: skip
             if progress:
                 progress(k + 1, len(points))
-        self.mask = torch.from_numpy((1.0 - np.tile(frames.mirror_frame(), frames.history).astype(np.float64)) / 2.0)
-        self.speed_columns = np.flatnonzero(np.tile(frames.mirror_frame(), frames.history) > 0)
+        for t in self.terms:  # the odd part's Jacobian below needs a mirror-symmetric operating input
+            if np.max(np.abs(t.x0[mirror < 0]), initial=0.0) > 1e-9:
+                raise ValueError(f"LoopPenalty: the input at rest at {t.speed_kmh} km/h is not mirror-symmetric "
+                                 f"(largest mirrored entry {np.max(np.abs(t.x0[mirror < 0])):.3g})")  # fmt: skip
+        self.mask = torch.from_numpy((1.0 - mirror) / 2.0)
+        self._x0 = [torch.from_numpy(np.where(mirror < 0, 0.0, t.x0)) for t in self.terms]
         self._a0 = [torch.from_numpy(t.a0) for t in self.terms]
         self._b = [torch.from_numpy(t.b) for t in self.terms]
         self._phi = [torch.from_numpy(t.phi) for t in self.terms]
 
-    def jacobian(self, linears: list, mean, std, speed_input: float):
-        """d u / d x of the mirror-odd network ``(g(z) - g(m z)) / 2`` at the input whose features
-        are zero and whose speed entries are ``speed_input`` (torch, float64, differentiable)."""
+    def scale(self, term: LoopTerms) -> float:
+        """The network's authority at the term's speed: a correction's scale, 1 for a plain student."""
+        return 1.0 if isinstance(self.frames, FrameHistory) else float(self.frames.scale_at(term.speed_kmh))
+
+    def jacobian(self, linears: list, mean, std, x0):
+        """d u / d x of the mirror-odd network ``(g(z) - g(m z)) / 2`` at the mirror-symmetric
+        input ``x0`` (``m x0 = x0``; torch, float64, differentiable)."""
         import torch
 
-        x0 = torch.zeros(mean.shape[0], dtype=torch.float64)
-        x0[self.speed_columns] = speed_input
         h = (x0 - mean.double()) / std.double()
         jac = None
         for i, lin in enumerate(linears):
@@ -232,7 +278,7 @@ class LoopPenalty:
             if i < len(linears) - 1:
                 h = torch.tanh(pre)
                 jac = (1.0 - h**2)[:, None] * jac
-        return jac * (self.mask / std.double())[None, :]  # at m z0 = z0 the odd part keeps the features' columns
+        return jac * (self.mask / std.double())[None, :]  # at m z0 = z0 the odd part keeps the mirrored columns
 
     def growth_bounds(self, linears: list, mean, std):
         """Per point and variant (in :attr:`terms` order, flat), the upper bound ``sigma_K`` on the
@@ -241,8 +287,8 @@ class LoopPenalty:
 
         log2 = self.settings["horizon_log2"]
         out = []
-        for t, a0, b, phi in zip(self.terms, self._a0, self._b, self._phi):
-            j = float(self.frames.scale_at(t.speed_kmh)) * self.jacobian(linears, mean, std, t.speed_input)
+        for t, a0, b, phi, x0 in zip(self.terms, self._a0, self._b, self._phi, self._x0):
+            j = self.scale(t) * self.jacobian(linears, mean, std, x0)
             m = a0 + b @ (j @ phi)
             logs = torch.zeros(m.shape[0], dtype=torch.float64)
             for _ in range(log2):
@@ -274,8 +320,8 @@ class LoopPenalty:
         linears, mean, std = _torch_network(network)
         out = []
         with torch.no_grad():
-            for t, a0, b, phi in zip(self.terms, self._a0, self._b, self._phi):
-                m = (a0 + b @ (float(self.frames.scale_at(t.speed_kmh)) * self.jacobian(linears, mean, std, t.speed_input) @ phi)).numpy()
+            for t, a0, b, phi, x0 in zip(self.terms, self._a0, self._b, self._phi, self._x0):
+                m = (a0 + b @ (self.scale(t) * self.jacobian(linears, mean, std, x0) @ phi)).numpy()
                 out.append(np.log(np.abs(np.linalg.eigvals(m)).max(axis=-1)) / t.dt)
         return np.concatenate(out)
 
