@@ -1,6 +1,6 @@
 """The learner's bound on `bogie train`: the same PPO on the recipe's envs and on a free env.
 
-    PYTHONPATH=. python benchmarks/bench_train_learner.py --config configs/agents/ppo_v1.yaml --rounds 3
+    PYTHONPATH=. python studies/train_learner_bound.py --config configs/agents/ppo_v1.yaml --rounds 3
 
 Per round, in one process and one after the other: ``PPO.learn`` of the config's recipe (its
 policy, hyperparameters, wrappers, odd actor, ``torch_threads``) for ``--timesteps`` steps on
