@@ -96,15 +96,13 @@ def main(argv=None) -> int:
     import torch
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-    from bogie_agents.training.train import load_run_config, make_vec_envs, total_envs
+    from bogie_agents.training.train import load_run_config, make_vec_envs, total_envs, vecnormalize_kwargs
 
     config = load_run_config(args.config, None)
     torch.set_num_threads(int(config.get("torch_threads", 1)))
     real, eval_env = make_vec_envs(config, int(config.get("seed", 0)))
     eval_env.close()
-    vn = {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, **(config.get("vecnormalize") or {})}
-    vn.setdefault("gamma", (config.get("hyperparams") or {}).get("gamma", 0.99))
-    free = VecNormalize(VecMonitor(free_vec_env(real)), **vn)
+    free = VecNormalize(VecMonitor(free_vec_env(real)), **vecnormalize_kwargs(config))
     models = {"recipe": learner(config, real), "free env": learner(config, free)}
     rollout = int(config["hyperparams"]["n_steps"]) * total_envs(config)
     for model in models.values():

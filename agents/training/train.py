@@ -290,6 +290,14 @@ def _latest_checkpoint(folder: Path) -> list[tuple[Path, int]]:
     return [(p, n) for n, p in sorted(found, reverse=True)]
 
 
+def vecnormalize_kwargs(config: dict) -> dict:
+    """The training VecNormalize's arguments: the config's ``vecnormalize`` over the defaults, the
+    discount the learner's."""
+    vn = {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, **(config.get("vecnormalize") or {})}
+    vn.setdefault("gamma", (config.get("hyperparams") or {}).get("gamma", 0.99))
+    return vn
+
+
 def make_vec_envs(config: dict, seed: int):
     """Training and evaluation VecEnvs (native batched), normalised and monitored."""
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
@@ -309,8 +317,7 @@ def make_vec_envs(config: dict, seed: int):
             offset += item["n_envs"]
         env = ConcatVecEnv(parts)
     env = VecMonitor(env)
-    vn = {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, **(config.get("vecnormalize") or {})}
-    vn.setdefault("gamma", (config.get("hyperparams") or {}).get("gamma", 0.99))
+    vn = vecnormalize_kwargs(config)
     env = VecNormalize(env, **vn)
     eval_cfg = config.get("eval") or {}
     eval_env = VecMonitor(_residual(BogieHuntingSB3VecEnv(int(eval_cfg.get("n_envs", 4)), eval_config, seed=seed + 10_000),
