@@ -312,18 +312,19 @@ class LoopPenalty:
         with torch.no_grad():
             return self.growth_bounds(*_torch_network(network)).numpy()
 
-    def growth_rates_of(self, network: StudentNetwork) -> np.ndarray:
-        """The exact growth rate (1/s: largest log|eigenvalue| / dt) of each loop of
-        :meth:`growth_bounds_of`, in the same order; below zero the loop is stable."""
+    def eigenvalues_of(self, network: StudentNetwork) -> list[np.ndarray]:
+        """The eigenvalues of each loop of :meth:`growth_bounds_of`, per term (variants, n)."""
         import torch
 
         linears, mean, std = _torch_network(network)
-        out = []
         with torch.no_grad():
-            for t, a0, b, phi, x0 in zip(self.terms, self._a0, self._b, self._phi, self._x0):
-                m = (a0 + b @ (self.scale(t) * self.jacobian(linears, mean, std, x0) @ phi)).numpy()
-                out.append(np.log(np.abs(np.linalg.eigvals(m)).max(axis=-1)) / t.dt)
-        return np.concatenate(out)
+            return [np.linalg.eigvals((a0 + b @ (self.scale(t) * self.jacobian(linears, mean, std, x0) @ phi)).numpy())
+                    for t, a0, b, phi, x0 in zip(self.terms, self._a0, self._b, self._phi, self._x0)]  # fmt: skip
+
+    def growth_rates_of(self, network: StudentNetwork) -> np.ndarray:
+        """The exact growth rate (1/s: largest log|eigenvalue| / dt) of each loop of
+        :meth:`growth_bounds_of`, in the same order; below zero the loop is stable."""
+        return np.concatenate([np.log(np.abs(z).max(axis=-1)) / t.dt for t, z in zip(self.terms, self.eigenvalues_of(network))])
 
     def named_rows(self) -> list[tuple[float, float, str, str]]:
         """Per loop of :meth:`growth_bounds_of`, in order: (speed km/h, conicity, kind, variant)."""
