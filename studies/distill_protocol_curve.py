@@ -85,14 +85,14 @@ def draw(data: dict, path: Path, wanted: set[int] | None = None) -> None:
         ax.plot(its, [x.mean() for x in v], "o-", label="mean")
         for name, reference in data.get("references", {}).items():
             if column in reference:
-                ax.axhline(reference[column], ls="--", lw=1, color="k" if name == "floor" else "gray")
-                ax.annotate(name, (its[0], reference[column]), fontsize=7, va="bottom")
+                ax.axhline(reference[column], ls="--" if name == "floor" else ":", lw=1, color="k" if name == "floor" else "gray",
+                           label=name)  # fmt: skip
         ax.set_title(f"conicity {column}")
         ax.set_xticks(its)
         ax.set_xlabel("DAgger iteration")
         ax.set_ylabel("critical speed (km/h)")
         ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7, loc="lower right")
+    axes[0][-1].legend(fontsize=7, loc="lower right")
     fig.suptitle(f"Protocol critical speed per DAgger iteration (seeds {data['seed']}-{data['seed'] + data['seeds'] - 1})", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
