@@ -94,7 +94,7 @@ def policy_options(func, required: bool = True):
     func = argument("--workers", type=int, default=None,
                     help="CPUs of the local Ray cluster that --backend ray starts (default: all)")(func)  # fmt: skip
     func = argument("--policy", action="append", required=required,
-                    help="passive | skyhook | lqr | lqg | robust_damping | robust_steering | pretrained | distilled | PATH (run folder or SB3 .zip, needs "
+                    help="passive | skyhook | lqr | lqg | robust_damping | robust_steering | pretrained | distilled | distilled_mpc | PATH (run folder or SB3 .zip, needs "
                          "--trust-policy); repeatable")(func)  # fmt: skip
     return argument("--trust-policy", action="store_true",
                     help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your "
@@ -258,7 +258,7 @@ def _print_v1(results: list[dict]) -> None:
 @argument("--trust-policy", action="store_true",
           help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your rights")
 @argument("--policy", action="append", required=True,
-          help="passive | skyhook | lqr | lqg | robust_damping | robust_steering | pretrained | distilled | PATH (run folder or SB3 .zip, needs --trust-policy); "
+          help="passive | skyhook | lqr | lqg | robust_damping | robust_steering | pretrained | distilled | distilled_mpc | PATH (run folder or SB3 .zip, needs --trust-policy); "
                "repeatable")
 @bogie_options
 def cmd_margins(args: argparse.Namespace) -> int:

@@ -145,24 +145,26 @@ def test_policy_env_shape_mismatch_fails_at_load(tmp_path, env_config):
         policy.act(np.zeros((2, 7), dtype=np.float32))
 
 
-def test_the_shipped_student_is_verified_and_is_the_distilled_policy(tmp_path, monkeypatch):
-    """``distilled`` loads ``distilled_v1`` (v1 ids only) after its manifest; a changed weight or an
-    unlisted file beside it is refused, as for ``pretrained``."""
+@pytest.mark.parametrize("name, residual", [("distilled", True), ("distilled_mpc", False)])
+def test_a_shipped_student_is_verified_before_loading(tmp_path, monkeypatch, name, residual):
+    """``distilled`` (a correction on ``robust_steering``) and ``distilled_mpc`` (a plain student)
+    load their ``NAME_v1`` folder (v1 ids only) after its manifest; a changed weight or an unlisted
+    file beside it is refused, as for ``pretrained``."""
     from bogie_agents.controllers.distilled import DistilledPolicy
     from bogie_env.envs.registration import IDS
 
     v1 = make_config(variant=IDS["Bogie/Hunting-v1"])
-    policy = load_policy("distilled", v1, env_id="Bogie/Hunting-v1")
-    assert isinstance(policy, DistilledPolicy) and policy.residual
-    with pytest.raises(ConfigError, match="no distilled student for env version 'v0'"):
-        load_policy("distilled", make_config())
-    folder = _pretrained_copy(tmp_path, monkeypatch).parent / "distilled_v1"
+    policy = load_policy(name, v1, env_id="Bogie/Hunting-v1")
+    assert isinstance(policy, DistilledPolicy) and policy.residual == residual
+    with pytest.raises(ConfigError, match=f"no {name} student for env version 'v0'"):
+        load_policy(name, make_config())
+    folder = _pretrained_copy(tmp_path, monkeypatch).parent / f"{name}_v1"
     (folder / "extra.json").write_text("{}")
     with pytest.raises(ConfigError, match="not in SHA256SUMS: extra.json"):
-        load_policy("distilled", v1, env_id="Bogie/Hunting-v1")
+        load_policy(name, v1, env_id="Bogie/Hunting-v1")
     (folder / "extra.json").unlink()
     data = bytearray((folder / "student.npz").read_bytes())
     data[-100] ^= 0xFF
     (folder / "student.npz").write_bytes(bytes(data))
     with pytest.raises(ConfigError, match="does not match its SHA-256"):
-        load_policy("distilled", v1, env_id="Bogie/Hunting-v1")
+        load_policy(name, v1, env_id="Bogie/Hunting-v1")

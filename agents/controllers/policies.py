@@ -16,6 +16,10 @@
   (``agents/pretrained/distilled_v1/``: DAgger from the privileged reference as a correction on
   ``robust_steering``, docs/studies/distillation.md), plain arrays and JSON, checked against its
   folder's ``SHA256SUMS`` as ``pretrained`` is;
+- ``distilled_mpc``: the sensor-only student of the MPC reference, its linearised loops held to
+  issue 25's margin floors (``agents/pretrained/distilled_mpc_v1/``: a plain network on the
+  sensor history, DAgger from ``privileged_mpc``, docs/studies/distillation.md), checked as
+  ``distilled`` is;
 - a path to a training run folder (``runs/NAME``) or to an SB3 ``.zip``: the saved model and,
   if present beside it, its ``vecnormalize.json`` observation statistics.
 
@@ -43,7 +47,7 @@ from .classical import CLASSICAL
 #: The shipped policies, one folder per env version (``v0``, ``v1``).
 PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
 #: Shipped policies by name: each one's folder under :data:`PRETRAINED_DIR` for an env version.
-SHIPPED = {"pretrained": "{version}", "distilled": "distilled_{version}"}
+SHIPPED = {"pretrained": "{version}", "distilled": "distilled_{version}", "distilled_mpc": "distilled_mpc_{version}"}
 ALGORITHMS = ("ppo", "sac", "td3", "recurrent_ppo")
 NORMALISATION_FILE = "vecnormalize.json"
 LEGACY_NORMALISATION_FILE = "vecnormalize.pkl"
@@ -393,11 +397,11 @@ def load_policy(spec: str, env_config: dict, trusted: bool = False, env_id: str 
                               f"{', '.join(shipped) or 'none'}); train one (docs/results.md)")  # fmt: skip
         verify_manifest(folder)
         policy = load_sb3_policy(folder, trusted=True, env_config=env_config)
-    elif spec == "distilled":
+    elif spec in SHIPPED:  # a distilled student: plain arrays and JSON
         folder = shipped_dir(spec, env_config, env_id)
         if not folder.is_dir():
-            shipped = sorted(p.name for p in PRETRAINED_DIR.glob("distilled_*") if p.is_dir())
-            raise ConfigError(f"no distilled student for env version {env_version(env_config, env_id)!r} in {folder} "
+            shipped = sorted(p.name for p in PRETRAINED_DIR.glob(f"{spec}_*") if p.is_dir())
+            raise ConfigError(f"no {spec} student for env version {env_version(env_config, env_id)!r} in {folder} "
                               f"(shipped: {', '.join(shipped) or 'none'}); distil one (docs/studies/distillation.md)")  # fmt: skip
         verify_manifest(folder, model_suffix=".npz")
         from .distilled import load_student
