@@ -13,7 +13,8 @@ from bogie_agents.controllers.policies import load_policy
 from bogie_agents.controllers.privileged import PrivilegedController
 from bogie_agents.design.margins import check_controller_model
 from bogie_agents.training.distill import (Rollouts, TeacherBank, bank_config, distill, draw_bank, env_config, frame_statistics,
-                                           load_config, mirror_signs, scenario_options, state_observation)
+                                           load_config, mirror_signs, route_env_config, scenario_options,
+                                           state_observation)
 from bogie_env.envs.config import merge_config
 from bogie_env.params import ConfigError
 from bogie_env.envs.task import HuntingTask
@@ -149,7 +150,10 @@ def test_student_files_are_checked(tmp_path):
                                             ({"dagger": {"betta": 1}}, "dagger.betta"), ({"env_id": "Bogie/Nope-v1"}, "env_id"),
                                             ({"student": {"hidden": []}}, "student.hidden"), ({"dagger": {"beta0": True}}, "dagger.beta0"),
                                             ({"fit": {"learning_rate": -1}}, "fit.learning_rate"),
-                                            ({"teacher": "mpc"}, "'teacher' = 'mpc'; allowed: one of privileged, privileged_mpc")])  # fmt: skip
+                                            ({"teacher": "mpc"}, "'teacher' = 'mpc'; allowed: one of privileged, privileged_mpc"),
+                                            ({"routes": {"n_envs": -1}}, "'routes.n_envs' = -1"),
+                                            ({"routes": {"env_id": "Bogie/Nope-v1"}}, "'routes.env_id'"),
+                                            ({"routes": {"rows": 2}}, "'routes' = ")])  # fmt: skip
 def test_bad_config_names_the_key(changes, match):
     with pytest.raises(ConfigError, match=match):
         load_config(None, changes)
@@ -178,6 +182,19 @@ def test_distill_writes_a_student_that_moves_toward_the_teacher(tmp_path, studen
     assert progress[-1]["loss"] < 0.5 * progress[-1]["label_variance"]  # it explains most of the teacher's commands
     assert load_student(out).frames.history == 2
     assert (progress[-1]["growth_bound_max_per_s"] is None) == (penalty is None)
+
+
+@pytest.mark.slow  # about 20 s: two teachers, torch's import and fit
+def test_route_rows_run_the_shipped_routes_beside_the_main_rows(tmp_path):
+    """``routes.n_envs`` rows run ``Bogie/HuntingRoute-v1``'s routes on the same bank, labelled by
+    their own teacher; their samples join the main rows' in every iteration, and none without them."""
+    cfg = _cfg(bank={"size": 2}, dagger={"iterations": 1, "steps": 40, "keep_every": 2}, student={"history": 2, "hidden": [8]},
+               fit={"epochs": 1, "batch_size": 64}, routes={"n_envs": 3})  # fmt: skip
+    assert route_env_config(cfg)["route"]["names"] and route_env_config(_cfg()) is None
+    out = distill(cfg, tmp_path / "run", progress=False)
+    progress = json.loads((out / "progress.json").read_text())["iterations"]
+    assert progress[0]["samples"] == (2 + 3) * 40 // 2
+    assert json.loads((out / META_FILE).read_text())["config"]["routes"]["n_envs"] == 3
 
 
 def _random_student(history=4, obs_dim=11, action_dim=4, scale=0.15, seed=3):

@@ -64,6 +64,9 @@ def default_config() -> dict[str, Any]:
         "env": {"speed": {"start_kmh_range": [100.0, 550.0], "end_kmh": 600.0, "accel": 1.5},
                 "large_perturbation_probability": 0.2},  # fmt: skip
         "n_envs": 64,
+        # rows on the shipped routes (curves, cant, transitions at their line speeds) beside the
+        # n_envs rows, on the scenarios of the same bank: n_envs 0 for none; env merged into env_id's variant
+        "routes": {"n_envs": 0, "env_id": "Bogie/HuntingRoute-v1", "env": {}},
         "episode_steps": None,  # an episode's longest run (env steps; None: the ramp's end or hunting ends it)
         # randomize: entries merged into the env's randomisation for the bank's draws only (e.g. wider
         # degradation ranges or more failed actuators than the env's episodes draw)
@@ -109,6 +112,15 @@ def load_config(path: str | Path | None, overrides: Mapping[str, Any] | None = N
     for where, value in (("fit.learning_rate", cfg["fit"]["learning_rate"]), ("max_wall_time_s", cfg["max_wall_time_s"])):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
             raise ConfigError(f"distill config {where!r} = {value!r}; allowed: a finite number > 0")
+    routes = {**default_config()["routes"], **cfg["routes"]} if isinstance(cfg["routes"], Mapping) else cfg["routes"]
+    if not isinstance(routes, Mapping) or set(routes) - {"n_envs", "env_id", "env"}:
+        raise ConfigError(f"distill config 'routes' = {cfg['routes']!r}; allowed: a mapping with 'n_envs', 'env_id' and 'env'")
+    n_route = routes["n_envs"]
+    if isinstance(n_route, bool) or not isinstance(n_route, int) or n_route < 0:
+        raise ConfigError(f"distill config 'routes.n_envs' = {n_route!r}; allowed: an integer >= 0")
+    if routes["env_id"] not in IDS:
+        raise ConfigError(f"distill config 'routes.env_id' = {routes['env_id']!r}; allowed: one of {', '.join(IDS)}")
+    cfg["routes"] = {"n_envs": n_route, "env_id": routes["env_id"], "env": dict(routes["env"] or {})}
     if cfg["teacher"] not in TEACHERS:
         raise ConfigError(f"distill config 'teacher' = {cfg['teacher']!r}; allowed: one of {', '.join(TEACHERS)}")
     hidden = cfg["student"]["hidden"]
@@ -147,7 +159,7 @@ def _merge(base: dict, user: Mapping[str, Any], where: str) -> dict:
         name = f"{where}{key}"
         if key not in base:
             raise ConfigError(f"distill config key {name!r} is not known; known here: {', '.join(base)}")
-        if isinstance(base[key], dict) and key not in ("env", "randomize", "residual", "loop_penalty"):
+        if isinstance(base[key], dict) and key not in ("env", "randomize", "residual", "loop_penalty", "routes"):
             if not isinstance(value, Mapping):
                 raise ConfigError(f"distill config {name!r} must be a mapping; got {value!r}")
             out[key] = _merge(base[key], value, name + ".")
@@ -169,6 +181,12 @@ def _deep_update(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict:
 def env_config(cfg: Mapping[str, Any]) -> dict:
     """The env config of the rollouts: the id's variant with the distill config's ``env``."""
     return make_config(cfg["env"], variant=IDS[cfg["env_id"]])
+
+
+def route_env_config(cfg: Mapping[str, Any]) -> dict | None:
+    """The env config of the route rows (``routes.env_id``'s variant with ``routes.env``), or None without them."""
+    routes = cfg["routes"]
+    return make_config(routes["env"], variant=IDS[routes["env_id"]]) if routes["n_envs"] else None
 
 
 # ---- the scenario bank and its teachers ---------------------------------------------------------
@@ -279,15 +297,16 @@ class Rollouts:
     """``n_envs`` rows of the task, each episode on a bank scenario, the teacher labelling every step."""
 
     def __init__(self, env_cfg: dict, n_envs: int, bank: list[Scenario], teacher: TeacherBank, history: int, seed: int,
-                 episode_steps: int | None = None, residual: Mapping[str, Any] | None = None) -> None:  # fmt: skip
+                 episode_steps: int | None = None, residual: Mapping[str, Any] | None = None, stream: int = 0) -> None:  # fmt: skip
         self.task = HuntingTask(n_envs, env_cfg)
         self.n = n_envs
         self.episode_steps = episode_steps
         self.steps = np.zeros(n_envs, dtype=np.int64)
         self.options = [scenario_options(s) for s in bank]
         self.teacher = teacher
-        self.rng = np.random.default_rng(seed)
-        self.next_seed = seed * 1_000_003 + 1
+        # stream: a second set of rows (the route rows) draws its own picks and episode seeds
+        self.rng = np.random.default_rng(seed if stream == 0 else [seed, stream])
+        self.next_seed = seed * 1_000_003 + 1 + stream * 10**12
         self.frames = student_frames(env_cfg, history, self.task, residual)
         self.by_teacher = np.ones(n_envs, dtype=bool)
         self.teacher.reset(n_envs)
@@ -439,6 +458,16 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
     residual = cfg["student"]["residual"]
     roll = Rollouts(bank_config(env_cfg, cfg["bank"]["randomize"]), cfg["n_envs"], bank, teacher, cfg["student"]["history"], seed,
                     cfg["episode_steps"], residual)  # fmt: skip
+    route_cfg = route_env_config(cfg)
+    route_roll = None
+    if route_cfg is not None:  # its own teacher: the designs hold the rows' loop states
+        route_teacher = TEACHERS[cfg["teacher"]](route_cfg, bank)
+        route_roll = Rollouts(bank_config(route_cfg, cfg["bank"]["randomize"]), cfg["routes"]["n_envs"], bank, route_teacher,
+                              cfg["student"]["history"], seed, cfg["episode_steps"], residual, stream=1)  # fmt: skip
+        if route_roll.task.observation_dim != roll.task.observation_dim:
+            raise ConfigError(f"distill config 'routes.env_id' = {cfg['routes']['env_id']!r} gives {route_roll.task.observation_dim} "
+                              f"observations; allowed: an id with env_id's {roll.task.observation_dim}")  # fmt: skip
+        say(f"{cfg['routes']['n_envs']} route rows ({cfg['routes']['env_id']})")
     mirror = mirror_signs(roll.task, cfg["student"]["history"], roll.frames) if cfg["student"]["mirror"] else None
     meta: dict[str, Any] = {"env_id": cfg["env_id"], "config": cfg}
     penalty = None
@@ -459,6 +488,10 @@ def distill(cfg: dict[str, Any], out: str | Path, progress: bool = True) -> Path
         beta = float(d["beta0"]) * float(d["beta_decay"]) ** k
         t_roll = time.time()
         x, y, info = roll.run(d["steps"], student, beta, d["keep_every"])
+        if route_roll is not None:
+            x_route, y_route, info_route = route_roll.run(d["steps"], student, beta, d["keep_every"])
+            x, y = np.concatenate([x, x_route]), np.concatenate([y, y_route])
+            info = {"episodes": info["episodes"] + info_route["episodes"]}
         t_fit = time.time()
         xs.append(x)
         ys.append(y)
