@@ -28,6 +28,8 @@ from bogie_env.cli import (SEED, argument, backend_options, bogie_options, bound
                            env_config_from_args, json_option, print_json)  # fmt: skip
 from bogie_env.params import ConfigError
 
+from .controllers import POLICY_HELP
+
 #: Modules of the ``[agents]`` extra: a missing one is reported with the install command.
 AGENTS_EXTRA = ("stable_baselines3", "torch", "tensorboard", "tqdm", "rich")
 
@@ -94,8 +96,7 @@ def policy_options(func, required: bool = True):
     func = argument("--workers", type=int, default=None,
                     help="CPUs of the local Ray cluster that --backend ray starts (default: all)")(func)  # fmt: skip
     func = argument("--policy", action="append", required=required,
-                    help="passive | skyhook | lqr | lqg | robust_damping | robust_steering | pretrained | distilled | distilled_mpc | PATH (run folder or SB3 .zip, needs "
-                         "--trust-policy); repeatable")(func)  # fmt: skip
+                    help=POLICY_HELP)(func)
     return argument("--trust-policy", action="store_true",
                     help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your "
                          "rights; use only for files you made or trust (pretrained is checked against its SHA-256 "
@@ -258,8 +259,7 @@ def _print_v1(results: list[dict]) -> None:
 @argument("--trust-policy", action="store_true",
           help="allow loading a policy PATH: an SB3 model file is code (it unpickles) and runs with your rights")
 @argument("--policy", action="append", required=True,
-          help="passive | skyhook | lqr | lqg | robust_damping | robust_steering | pretrained | distilled | distilled_mpc | PATH (run folder or SB3 .zip, needs --trust-policy); "
-               "repeatable")
+          help=POLICY_HELP)
 @bogie_options
 def cmd_margins(args: argparse.Namespace) -> int:
     try:

@@ -168,3 +168,15 @@ def test_a_shipped_student_is_verified_before_loading(tmp_path, monkeypatch, nam
     (folder / "student.npz").write_bytes(bytes(data))
     with pytest.raises(ConfigError, match="does not match its SHA-256"):
         load_policy(name, v1, env_id="Bogie/Hunting-v1")
+
+
+def test_the_policy_help_names_every_controller_and_shipped_policy():
+    """``--policy --help`` lists every name ``load_policy`` takes (a new controller must be added there)."""
+    import re
+
+    from bogie_agents.controllers import POLICY_HELP
+    from bogie_agents.controllers.classical import CLASSICAL
+    from bogie_agents.controllers.policies import SHIPPED
+
+    named = set(re.findall(r"[a-z_0-9]+", POLICY_HELP))
+    assert set(CLASSICAL) | set(SHIPPED) <= named, sorted(set(CLASSICAL) | set(SHIPPED) - named)

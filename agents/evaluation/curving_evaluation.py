@@ -417,8 +417,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from bogie_env.envs.registration import IDS
 
+    from ..controllers import POLICY_HELP
+
     parser = argparse.ArgumentParser(description="curving columns of controllers on the shipped routes")
-    parser.add_argument("--policy", action="append", required=True, help="passive | skyhook | lqr | lqg | robust_damping | robust_steering | pretrained | distilled | distilled_mpc | PATH")
+    parser.add_argument("--policy", action="append", required=True, help=POLICY_HELP)
     parser.add_argument("--trust-policy", action="store_true", help="allow loading a policy PATH (an SB3 file is code)")
     parser.add_argument("--env", default="Bogie/Hunting-v1", help="the v1 env whose world the routes run in")
     parser.add_argument("--routes", default=None, help="comma-separated route names (default: every shipped route)")
