@@ -145,10 +145,10 @@ def test_policy_env_shape_mismatch_fails_at_load(tmp_path, env_config):
         policy.act(np.zeros((2, 7), dtype=np.float32))
 
 
-@pytest.mark.parametrize("name, residual", [("distilled", True), ("distilled_mpc", False)])
+@pytest.mark.parametrize("name, residual", [("distilled", True), ("distilled_mpc", False), ("distilled_mpc_washout", True)])
 def test_a_shipped_student_is_verified_before_loading(tmp_path, monkeypatch, name, residual):
-    """``distilled`` (a correction on ``robust_steering``) and ``distilled_mpc`` (a plain student)
-    load their ``NAME_v1`` folder (v1 ids only) after its manifest; a changed weight or an unlisted
+    """``distilled`` (a correction on ``robust_steering``), ``distilled_mpc`` (a plain student) and
+    ``distilled_mpc_washout`` (a student on washed-out signals) load their ``NAME_v1`` folder (v1 ids only) after its manifest; a changed weight or an unlisted
     file beside it is refused, as for ``pretrained``."""
     from bogie_agents.controllers.distilled import DistilledPolicy
     from bogie_env.envs.registration import IDS
@@ -168,6 +168,27 @@ def test_a_shipped_student_is_verified_before_loading(tmp_path, monkeypatch, nam
     (folder / "student.npz").write_bytes(bytes(data))
     with pytest.raises(ConfigError, match="does not match its SHA-256"):
         load_policy(name, v1, env_id="Bogie/Hunting-v1")
+
+
+def test_the_washed_out_student_commands_nothing_for_a_constant_observation():
+    """A steady curve, a constant sensor bias: any constant observation. ``distilled_mpc_washout``'s
+    signals are washed out, so once its filters have settled (the observation is a step from
+    rest, and the washouts are at 0.5 Hz) it commands nothing; the plain ``distilled_mpc`` on the
+    same observation holds a steady command (the check can fail)."""
+    from bogie_env.envs.registration import IDS
+    from bogie_env.envs.task import SPEED_SCALE_KMH, speed_index
+
+    v1 = make_config(variant=IDS["Bogie/Hunting-v1"])
+    commands = {}
+    for name in ("distilled_mpc_washout", "distilled_mpc"):
+        policy = load_policy(name, v1, env_id="Bogie/Hunting-v1")
+        obs = np.full((2, policy.frames.obs_dim), 0.3, dtype=np.float32)
+        obs[1] *= -1.0  # the mirrored curve
+        obs[:, speed_index(v1["observation"]["type"])] = 250.0 / SPEED_SCALE_KMH
+        policy.reset(2)
+        commands[name] = np.array([policy.act(obs) for _ in range(1000)])[-100:]  # the last second of 10
+    assert np.abs(commands["distilled_mpc_washout"]).max() < 1e-4
+    assert np.abs(commands["distilled_mpc"]).min(axis=0).max() > 0.05
 
 
 def test_the_policy_help_names_every_controller_and_shipped_policy():

@@ -9,5 +9,5 @@ at module level (docs/extending.md, "Code layout")."""
 #: ``--help`` does not import the controllers.
 POLICY_HELP = ("a classical controller (passive, skyhook, lqr, lqg, lqg_rate, adaptive_lqg, adaptive_lqg_rate, "
                "robust_damping, robust_steering, mpc; privileged references: privileged, privileged_sensors, "
-               "privileged_mpc, privileged_mpc_sensors), a shipped policy (pretrained, distilled, distilled_mpc) "
-               "or PATH (run folder or SB3 .zip, needs --trust-policy); repeatable")
+               "privileged_mpc, privileged_mpc_sensors), a shipped policy (pretrained, distilled, distilled_mpc, "
+               "distilled_mpc_washout) or PATH (run folder or SB3 .zip, needs --trust-policy); repeatable")

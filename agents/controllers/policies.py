@@ -20,6 +20,9 @@
   issue 25's margin floors (``agents/pretrained/distilled_mpc_v1/``: a plain network on the
   sensor history, DAgger from ``privileged_mpc``, docs/studies/distillation.md), checked as
   ``distilled`` is;
+- ``distilled_mpc_washout``: the same student and penalty on the robust filter bank's washed-out
+  signals instead of the raw sensors (``agents/pretrained/distilled_mpc_washout_v1/``: zero
+  command for any constant observation, so none in a steady curve), checked as ``distilled`` is;
 - a path to a training run folder (``runs/NAME``) or to an SB3 ``.zip``: the saved model and,
   if present beside it, its ``vecnormalize.json`` observation statistics.
 
@@ -47,7 +50,8 @@ from .classical import CLASSICAL
 #: The shipped policies, one folder per env version (``v0``, ``v1``).
 PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
 #: Shipped policies by name: each one's folder under :data:`PRETRAINED_DIR` for an env version.
-SHIPPED = {"pretrained": "{version}", "distilled": "distilled_{version}", "distilled_mpc": "distilled_mpc_{version}"}
+SHIPPED = {"pretrained": "{version}", "distilled": "distilled_{version}", "distilled_mpc": "distilled_mpc_{version}",
+           "distilled_mpc_washout": "distilled_mpc_washout_{version}"}
 ALGORITHMS = ("ppo", "sac", "td3", "recurrent_ppo")
 NORMALISATION_FILE = "vecnormalize.json"
 LEGACY_NORMALISATION_FILE = "vecnormalize.pkl"
